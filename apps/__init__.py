@@ -1,0 +1,1 @@
+"""Command-line apps and reports of rgbd-envmap."""

@@ -1,0 +1,124 @@
+"""Input validation helpers shared by every module.
+
+Each helper raises a subclass of :class:`rgbd_envmap.errors.RgbdEnvmapError` whose message names the
+argument, what was expected and what was given. Helpers return the (possibly converted) array so they
+can be used inline: ``depth_m = check_array(depth_m, "depth_m", shape=("H", "W"))``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from rgbd_envmap.errors import (
+    DTypeError,
+    NonFiniteError,
+    RangeError,
+    ShapeError,
+    UnknownMethodError,
+)
+
+__all__ = ["check_array", "check_finite", "check_range", "check_method", "check_positive_int"]
+
+Dim = int | str
+
+
+def _match_shape(shape: tuple[int, ...], spec: Sequence[Dim]) -> bool:
+    """True when ``shape`` matches ``spec``. ``spec`` entries are ints (exact size), names (any size,
+    equal names must agree) or ``"*"`` (any number of leading dimensions, only first)."""
+    spec = list(spec)
+    if spec and spec[0] == "*":
+        rest = spec[1:]
+        if len(shape) < len(rest):
+            return False
+        shape = shape[len(shape) - len(rest):]
+        spec = rest
+    if len(shape) != len(spec):
+        return False
+    bound: dict[str, int] = {}
+    for size, want in zip(shape, spec):
+        if isinstance(want, int):
+            if size != want:
+                return False
+        elif want in bound and bound[want] != size:
+            return False
+        else:
+            bound[want] = size
+    return True
+
+
+def check_array(
+    value: object,
+    name: str,
+    *,
+    shape: Sequence[Dim] | None = None,
+    dtype: Iterable[type | str] | type | str | None = None,
+    finite: bool = False,
+) -> np.ndarray:
+    """Return ``value`` as an ndarray after checking shape, dtype kind and finiteness.
+
+    Args:
+        value: anything ``np.asarray`` accepts.
+        name: the argument's name, for the message.
+        shape: a shape spec such as ``("H", "W", 3)`` or ``("*", 3)``.
+        dtype: accepted dtype(s); ``"float"``, ``"int"``, ``"bool"`` accept any of that kind.
+        finite: reject NaN and infinity.
+    """
+    try:
+        arr = np.asarray(value)
+    except Exception as exc:  # noqa: BLE001 - anything unconvertible is a type error for the caller
+        raise DTypeError(f"{name}: expected an array, got {type(value).__name__} ({exc})") from exc
+    if shape is not None and not _match_shape(arr.shape, shape):
+        raise ShapeError(f"{name}: expected shape {tuple(shape)}, got {arr.shape}")
+    if dtype is not None:
+        wanted = [dtype] if isinstance(dtype, (type, str)) else list(dtype)
+        kinds = {"float": "f", "int": "iu", "bool": "b", "uint": "u"}
+        ok = False
+        for want in wanted:
+            if isinstance(want, str) and want in kinds:
+                ok |= arr.dtype.kind in kinds[want]
+            else:
+                ok |= arr.dtype == np.dtype(want)
+        if not ok:
+            raise DTypeError(f"{name}: expected dtype {wanted}, got {arr.dtype}")
+    if finite:
+        check_finite(arr, name)
+    return arr
+
+
+def check_finite(arr: np.ndarray, name: str) -> np.ndarray:
+    """Raise :class:`NonFiniteError` if ``arr`` holds NaN or infinity."""
+    arr = np.asarray(arr)
+    if arr.dtype.kind in "fc" and not np.isfinite(arr).all():
+        bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
+        raise NonFiniteError(f"{name}: expected finite values, got {bad} NaN or inf of {arr.size}")
+    return arr
+
+
+def check_range(arr: np.ndarray, name: str, low: float, high: float) -> np.ndarray:
+    """Raise :class:`RangeError` unless every value lies in the closed interval [low, high]."""
+    arr = np.asarray(arr)
+    if arr.size and not (np.all(arr >= low) and np.all(arr <= high)):
+        raise RangeError(
+            f"{name}: expected values in [{low}, {high}], got [{np.nanmin(arr)}, {np.nanmax(arr)}]"
+            + (" and NaN" if np.isnan(arr).any() else "")
+        )
+    return arr
+
+
+def check_positive_int(value: object, name: str) -> int:
+    """Return ``value`` as an int, raising :class:`RangeError` unless it is an integer ≥ 1."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise DTypeError(f"{name}: expected a positive integer, got {value!r}")
+    if value < 1:
+        raise RangeError(f"{name}: expected a positive integer, got {value}")
+    return int(value)
+
+
+def check_method(method: str, valid: Iterable[str], name: str = "method") -> str:
+    """Raise :class:`UnknownMethodError` listing the valid names unless ``method`` is one of them."""
+    valid = list(valid)
+    if method not in valid:
+        raise UnknownMethodError(f"{name}: unknown method {method!r}; valid methods are {valid}")
+    return method

@@ -1,0 +1,345 @@
+"""Session logs: write sensor packets to a directory and read them back bit-for-bit.
+
+A session directory holds::
+
+    session/
+      calibration.json       {"format": "rgbd-envmap-session", "version": 1, **Calibration.to_dict()}
+      depth.txt              TUM-style index: comment lines start with '#'; "<timestamp_s> depth/<timestamp_ns>.ply"
+      depth/<ns>.ply         binary_little_endian PLY 1.0, element vertex N with float x y z confidence (depth sensor frame, metres)
+      depth_poses.txt        TUM RGB-D trajectory: "timestamp_s tx ty tz qx qy qz qw" (T_world_from_depth)
+      colour.txt             "<timestamp_s> colour/<ns>.png"
+      colour/<ns>.png        the NV21 buffer as a single-channel 8-bit PNG of shape (H*3/2, W) (lossless; documented)
+      colour_poses.txt       T_world_from_colour, TUM format
+      groundtruth/           optional: depth_poses.txt, colour_poses.txt (true poses, TUM), depth/<ns>.npz and colour/<ns>.npz (arbitrary named arrays per packet)
+
+Timestamps are integer nanoseconds in memory and ``<seconds>.<9 digits>`` in text, converted by string
+splitting, never through a float, so every ``ns >= 0`` below 2**63 survives exactly (the reader also
+accepts fewer than 9 decimals, as in the TUM benchmark). Poses are written as translation and unit
+quaternion (x, y, z, w; w >= 0) with ``%.17g``; reading rebuilds the rotation from the quaternion, so a
+pose matrix comes back to about 1e-15, not bit-for-bit (tests use 1e-12). Frame names of a read pose are
+``("world", "depth")`` / ``("world", "colour")``.
+
+Writers append each line (file, then pose, then index entry) as the packet arrives, so a crash leaves a
+readable prefix. Readers raise :class:`LogFormatError` naming the file (and line, for text files).
+
+References:
+    Sturm et al., "A Benchmark for the Evaluation of RGB-D SLAM Systems", IROS 2012 (file formats).
+    Bourke, "PLY - Polygon File Format", paulbourke.net/dataformats/ply.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import zipfile
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from rgbd_envmap.errors import InvalidInputError, LogFormatError, RgbdEnvmapError, ShapeError
+from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, RigidTransform
+
+__all__ = ["SessionWriter", "SessionLog", "format_timestamp", "parse_timestamp", "QUATERNION_NORM_TOL"]
+
+FORMAT, VERSION = "rgbd-envmap-session", 1
+KINDS = ("depth", "colour")
+_EXT = {"depth": "ply", "colour": "png"}
+_SESSION_ENTRIES = ("calibration.json", "groundtruth", *KINDS, *(f"{k}{s}.txt" for k in KINDS for s in ("", "_poses")))
+_PLY_FIELDS = ("x", "y", "z", "confidence")
+_TIMESTAMP_RE = re.compile(r"([0-9]+)(?:\.([0-9]{1,9}))?")
+#: Largest accepted | |q| - 1 | of a quaternion read from a pose file (TUM files print 4 decimals).
+QUATERNION_NORM_TOL = 1e-3
+
+
+def format_timestamp(timestamp_ns: int) -> str:
+    """Integer nanoseconds ``>= 0`` as seconds with exactly 9 decimals, e.g. 1 -> "0.000000001"."""
+    ns = int(timestamp_ns)
+    if ns < 0:
+        raise InvalidInputError(f"timestamp_ns: expected >= 0, got {ns}")
+    return f"{ns // 10**9}.{ns % 10**9:09d}"
+
+
+def parse_timestamp(text: str) -> int:
+    """Inverse of :func:`format_timestamp` (exact); ``ValueError`` unless ``text`` is ``\\d+(.\\d{1,9})?``."""
+    m = _TIMESTAMP_RE.fullmatch(text)
+    if m is None:
+        raise ValueError(f"malformed timestamp {text!r}")
+    ns = int(m[1]) * 10**9 + int((m[2] or "").ljust(9, "0"))
+    if ns >= 2**63:
+        raise ValueError(f"timestamp {text!r} does not fit in int64 nanoseconds")
+    return ns
+
+
+def _read_table(path: Path, n_fields: int) -> list[tuple[int, int, list[str]]]:
+    """(line number, timestamp_ns, other fields) per data line; timestamps must strictly increase."""
+    rows: list[tuple[int, int, list[str]]] = []
+    for lineno, line in enumerate(_read_bytes(path).decode("utf-8", "replace").splitlines(), start=1):
+        fields = line.split()
+        if not fields or fields[0].startswith("#"):
+            continue
+        if len(fields) != n_fields:
+            raise LogFormatError(f"{path}, line {lineno}: expected {n_fields} fields, got {len(fields)}")
+        try:
+            ns = parse_timestamp(fields[0])
+        except ValueError as exc:
+            raise LogFormatError(f"{path}, line {lineno}: {exc}") from None
+        if rows and ns <= rows[-1][1]:
+            raise LogFormatError(f"{path}, line {lineno}: timestamp {fields[0]} does not increase "
+                                 f"(previous {format_timestamp(rows[-1][1])}; unsorted or duplicate)")
+        rows.append((lineno, ns, fields[1:]))
+    return rows
+
+
+def _read_poses(path: Path, kind: str) -> dict[int, RigidTransform]:
+    """TUM trajectory file -> {timestamp_ns: T_world_from_<kind>}."""
+    poses = {}
+    for lineno, ns, fields in _read_table(path, 8):
+        where = f"{path}, line {lineno}"
+        try:
+            v = np.array([float(f) for f in fields])
+        except ValueError:
+            raise LogFormatError(f"{where}: pose values must be numbers, got {fields}") from None
+        if not np.isfinite(v).all():
+            raise LogFormatError(f"{where}: pose holds NaN or inf: {fields}")
+        if abs(np.linalg.norm(v[3:]) - 1.0) > QUATERNION_NORM_TOL:
+            raise LogFormatError(f"{where}: quaternion norm {np.linalg.norm(v[3:]):.6g} is not 1")
+        poses[ns] = RigidTransform.from_quaternion(v[:3], v[3:], "world", kind)
+    return poses
+
+
+def _pose_line(timestamp_ns: int, T: RigidTransform) -> str:
+    values = np.concatenate([T.translation, T.quaternion_xyzw()])
+    return format_timestamp(timestamp_ns) + " " + " ".join("%.17g" % x for x in values) + "\n"
+
+
+def _ply_bytes(points_m: np.ndarray, confidence: np.ndarray) -> bytes:
+    body = np.empty(len(points_m), dtype=[(f, "<f4") for f in _PLY_FIELDS])
+    body["x"], body["y"], body["z"] = points_m.T
+    body["confidence"] = confidence
+    header = ("ply\nformat binary_little_endian 1.0\ncomment rgbd-envmap depth packet, depth sensor frame, metres\n"
+              f"element vertex {len(body)}\n" + "".join(f"property float {f}\n" for f in _PLY_FIELDS) + "end_header\n")
+    return header.encode("ascii") + body.tobytes()
+
+
+def _read_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Our PLY layout (x y z confidence as float32 in any order) -> ((N, 3) float32 m, (N,) float32)."""
+    data = _read_bytes(path)
+    end = re.search(rb"end_header\r?\n", data)
+    if not data.startswith(b"ply") or end is None:
+        raise LogFormatError(f"{path}: not a PLY file (no 'ply' magic or no end_header)")
+    n, names, elements, fmt = 0, [], 0, None
+    for line in data[: end.start()].decode("ascii", "replace").splitlines()[1:]:
+        w = line.split() or ["comment"]
+        if w[0] in ("comment", "obj_info"):
+            continue
+        elif w[0] == "format":
+            fmt = w[1:]
+        elif w[0] == "element" and len(w) == 3 and w[1] == "vertex" and w[2].isdigit():
+            n, elements = int(w[2]), elements + 1
+        elif w[0] == "property" and len(w) == 3 and w[1] in ("float", "float32") and elements == 1:
+            names.append(w[2])
+        else:
+            raise LogFormatError(f"{path}: unsupported PLY header line {line!r}")
+    if fmt != ["binary_little_endian", "1.0"] or elements != 1 or sorted(names) != sorted(_PLY_FIELDS):
+        raise LogFormatError(f"{path}: expected binary_little_endian 1.0 with one vertex element of float "
+                             f"{' '.join(_PLY_FIELDS)}, got format {fmt}, properties {names}")
+    body = data[end.end():]
+    if len(body) != n * 16:
+        raise LogFormatError(f"{path}: body holds {len(body)} bytes, header says {n} vertices x 16 = {n * 16}"
+                             + (" (truncated)" if len(body) < n * 16 else ""))
+    arr = np.frombuffer(body, dtype=[(f, "<f4") for f in names])
+    points = np.stack([arr["x"], arr["y"], arr["z"]], axis=-1).astype(np.float32).reshape(n, 3)
+    return points, arr["confidence"].astype(np.float32)
+
+
+def _packet(path: Path, cls: type, *args: object) -> DepthPacket | ColourPacket:
+    try:
+        return cls(*args)
+    except RgbdEnvmapError as exc:
+        raise LogFormatError(f"{path}: invalid packet ({exc})") from None
+
+
+def _read_bytes(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise LogFormatError(f"{path}: {'missing file' if isinstance(exc, FileNotFoundError) else exc}") from None
+
+
+class SessionWriter:
+    """Record packets into a session directory (layout in the module docstring); a context manager.
+
+    Args:
+        root: the session directory; created if missing. An existing non-empty directory raises
+            :class:`LogFormatError` unless ``overwrite``, which removes only the entries this format owns.
+        calibration: written to ``calibration.json``; colour packets must match ``calibration.colour``.
+    """
+
+    def __init__(self, root: str | Path, calibration: Calibration, *, overwrite: bool = False) -> None:
+        self.root = Path(root)
+        if self.root.is_dir() and any(self.root.iterdir()):
+            if not overwrite:
+                raise LogFormatError(f"{self.root}: session directory exists and is not empty (pass overwrite=True)")
+            for name in _SESSION_ENTRIES:
+                p = self.root / name
+                shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
+        self.calibration, self._files, self._last_ns = calibration, {}, {}
+        for kind in KINDS:
+            (self.root / kind).mkdir(parents=True, exist_ok=True)
+        meta = {"format": FORMAT, "version": VERSION, **calibration.to_dict()}
+        (self.root / "calibration.json").write_text(json.dumps(meta, indent=2))
+        for kind in KINDS:
+            self._line(f"{kind}.txt", f"# rgbd-envmap {kind} packets\n# timestamp_s filename\n")
+            self._line(f"{kind}_poses.txt", f"# T_world_from_{kind}\n# timestamp_s tx ty tz qx qy qz qw\n")
+
+    def _line(self, name: str, text: str) -> None:
+        if name not in self._files:  # line-buffered append: every finished line reaches the disk
+            (self.root / name).parent.mkdir(parents=True, exist_ok=True)
+            self._files[name] = open(self.root / name, "a", buffering=1, newline="\n")
+        self._files[name].write(text)
+
+    def write(self, packet: DepthPacket | ColourPacket, *, true_pose: RigidTransform | None = None,
+              groundtruth: Mapping[str, np.ndarray] | None = None) -> None:
+        """Append one packet, optionally with its true pose and named ground-truth arrays.
+
+        Raises:
+            InvalidInputError: timestamp not strictly after the stream's previous one, or writer closed.
+            ShapeError: a colour packet whose size differs from ``calibration.colour``.
+        """
+        if self._files is None:
+            raise InvalidInputError(f"{self.root}: SessionWriter is closed")
+        kind, ns = packet.kind, packet.timestamp_ns
+        stamp = format_timestamp(ns)
+        if kind in self._last_ns and ns <= self._last_ns[kind]:
+            raise InvalidInputError(f"{kind} timestamp_ns: expected > previous {self._last_ns[kind]}, got {ns}")
+        arrays = {k: np.asarray(v) for k, v in (groundtruth or {}).items()}
+        if any(a.dtype.kind == "O" for a in arrays.values()):
+            raise InvalidInputError("groundtruth: object arrays cannot be stored without pickle")
+        rel = f"{kind}/{ns}.{_EXT[kind]}"
+        if kind == "depth":
+            (self.root / rel).write_bytes(_ply_bytes(packet.points_m, packet.confidence))
+            T = packet.T_world_from_depth
+        else:
+            want = (self.calibration.colour.height * 3 // 2, self.calibration.colour.width)
+            if packet.nv21.shape != want:
+                raise ShapeError(f"nv21: expected shape {want} from calibration.colour, got {packet.nv21.shape}")
+            ok, png = cv2.imencode(".png", packet.nv21)
+            if not ok:
+                raise InvalidInputError(f"{rel}: PNG encoding failed")
+            (self.root / rel).write_bytes(png.tobytes())
+            T = packet.T_world_from_colour
+        if arrays:  # an .npz by hand: np.savez(**arrays) would take keys "file" / "allow_pickle" as arguments
+            (self.root / "groundtruth" / kind).mkdir(parents=True, exist_ok=True)
+            with zipfile.ZipFile(self.root / "groundtruth" / kind / f"{ns}.npz", "w") as zf:
+                for name, a in arrays.items():
+                    with zf.open(f"{name}.npy", "w", force_zip64=True) as f:
+                        np.lib.format.write_array(f, a, allow_pickle=False)
+        if true_pose is not None:
+            self._line(f"groundtruth/{kind}_poses.txt", _pose_line(ns, true_pose))
+        self._line(f"{kind}_poses.txt", _pose_line(ns, T))
+        self._line(f"{kind}.txt", f"{stamp} {rel}\n")
+        self._last_ns[kind] = ns
+
+    def close(self) -> None:
+        """Close every open file; idempotent."""
+        for f in (self._files or {}).values():
+            f.close()
+        self._files = None
+
+    def __enter__(self) -> "SessionWriter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class SessionLog:
+    """A recorded session opened for reading; packet files are read lazily.
+
+    Attributes:
+        root: the session directory.
+        calibration: the device calibration.
+        depth_timestamps_ns, colour_timestamps_ns: (N,) int64, strictly increasing, read-only.
+    """
+
+    def __init__(self, root: Path, calibration: Calibration, entries: dict[str, list[tuple[int, str, RigidTransform]]]):
+        """Use :meth:`open`. ``entries[kind]``: (timestamp_ns, path relative to root, pose) per packet."""
+        self.root, self.calibration, self._entries = root, calibration, entries
+        self.depth_timestamps_ns, self.colour_timestamps_ns = (
+            np.array([e[0] for e in entries[k]], dtype=np.int64) for k in KINDS)
+        for ts in (self.depth_timestamps_ns, self.colour_timestamps_ns):
+            ts.setflags(write=False)
+
+    @classmethod
+    def open(cls, root: str | Path) -> "SessionLog":
+        """Validate ``calibration.json`` and read the indices and poses (not the packet files)."""
+        root = Path(root)
+        path = root / "calibration.json"
+        try:
+            d = json.loads(_read_bytes(path))
+            if d.get("format") != FORMAT or d.get("version") != VERSION:
+                raise ValueError(f"expected format {FORMAT!r} version {VERSION}, got {d.get('format')!r} {d.get('version')!r}")
+            calibration = Calibration.from_dict(d)
+        except json.JSONDecodeError as exc:
+            raise LogFormatError(f"{path}, line {exc.lineno}: invalid JSON ({exc.msg})") from None
+        except (ValueError, KeyError, TypeError, AttributeError, RgbdEnvmapError) as exc:
+            raise LogFormatError(f"{path}: invalid calibration ({type(exc).__name__}: {exc})") from None
+        entries = {}
+        for kind in KINDS:
+            poses, index, entries[kind] = _read_poses(root / f"{kind}_poses.txt", kind), root / f"{kind}.txt", []
+            for lineno, ns, (rel,) in _read_table(index, 2):
+                if ns not in poses:
+                    raise LogFormatError(f"{index}, line {lineno}: no pose for {format_timestamp(ns)} in {kind}_poses.txt")
+                entries[kind].append((ns, rel, poses[ns]))
+        return cls(root, calibration, entries)
+
+    def __len__(self) -> int:
+        return sum(len(v) for v in self._entries.values())
+
+    def __iter__(self) -> Iterator[DepthPacket | ColourPacket]:
+        """All packets in timestamp order; depth before colour on equal timestamps."""
+        n_depth = len(self.depth_timestamps_ns)
+        for j in np.argsort(np.concatenate([self.depth_timestamps_ns, self.colour_timestamps_ns]), kind="stable"):
+            yield self.read_depth(int(j)) if j < n_depth else self.read_colour(int(j - n_depth))
+
+    def read_depth(self, i: int) -> DepthPacket:
+        """The ``i``-th depth packet (points in metres, depth sensor frame)."""
+        ns, rel, T = self._entries["depth"][i]
+        return _packet(self.root / rel, DepthPacket, ns, *_read_ply(self.root / rel), T)
+
+    def read_colour(self, i: int) -> ColourPacket:
+        """The ``i``-th colour packet; its (H*3/2, W) uint8 NV21 buffer must match the calibration."""
+        ns, rel, T = self._entries["colour"][i]
+        path = self.root / rel
+        img = cv2.imdecode(np.frombuffer(_read_bytes(path), np.uint8), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise LogFormatError(f"{path}: unreadable or truncated PNG")
+        want = (self.calibration.colour.height * 3 // 2, self.calibration.colour.width)
+        if img.dtype != np.uint8 or img.shape != want:
+            raise LogFormatError(f"{path}: expected a {want} uint8 NV21 image, got {img.shape} {img.dtype}")
+        return _packet(path, ColourPacket, ns, img, T)
+
+    def groundtruth(self, kind: str, timestamp_ns: int) -> dict[str, np.ndarray]:
+        """Named ground-truth arrays stored with the ``kind`` packet at ``timestamp_ns``; {} if none."""
+        path = self.root / "groundtruth" / _check_kind(kind) / f"{int(timestamp_ns)}.npz"
+        if not path.is_file():
+            return {}
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                return {k: npz[k] for k in npz.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise LogFormatError(f"{path}: unreadable NPZ ({exc})") from None
+
+    def true_poses(self, kind: str) -> dict[int, RigidTransform]:
+        """{timestamp_ns: true T_world_from_<kind>} from ``groundtruth/<kind>_poses.txt``; {} if none."""
+        path = self.root / "groundtruth" / f"{_check_kind(kind)}_poses.txt"
+        return _read_poses(path, kind) if path.is_file() else {}
+
+
+def _check_kind(kind: str) -> str:
+    if kind not in KINDS:
+        raise InvalidInputError(f"kind: expected one of {list(KINDS)}, got {kind!r}")
+    return kind

@@ -1,0 +1,410 @@
+"""Frozen value types: camera intrinsics with Brown distortion, rigid transforms, sensor packets and
+RGB-D frames.
+
+Array fields are converted to the documented dtype and made read-only on construction, so a frame
+handed to a stage cannot be changed behind the caller's back. Equality compares arrays element-wise
+(NaN never occurs in a valid instance).
+
+Conventions (docs/CONVENTIONS.md): transforms are ``T_dst_from_src`` 4×4 float64 with
+``p_dst = T_dst_from_src @ p_src``; camera frames are OpenCV (x right, y down, z forward); timestamps
+are integer nanoseconds; depth in images is z-depth in metres.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Union
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from rgbd_envmap.checks import check_array, check_range
+from rgbd_envmap.errors import InvalidInputError, NonFiniteError, RangeError
+
+__all__ = [
+    "Distortion",
+    "Intrinsics",
+    "RigidTransform",
+    "DepthPacket",
+    "ColourPacket",
+    "SensorPacket",
+    "Calibration",
+    "RGBDFrame",
+    "ORTHONORMAL_TOL",
+]
+
+#: Largest accepted deviation of R^T R from the identity (and of det R from 1).
+ORTHONORMAL_TOL = 1e-6
+
+
+def _frozen_array(obj: object, name: str, arr: np.ndarray) -> None:
+    arr = np.array(arr, copy=True)
+    arr.setflags(write=False)
+    object.__setattr__(obj, name, arr)
+
+
+class _ArrayEq:
+    """Dataclass mixin: ``==`` compares every field, arrays by value and dtype."""
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        for f in dataclasses.fields(self):
+            a, b = getattr(self, f.name), getattr(other, f.name)
+            if isinstance(a, np.ndarray):
+                if a.dtype != b.dtype or not np.array_equal(a, b):
+                    return False
+            elif a != b:
+                return False
+        return True
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+@dataclass(frozen=True)
+class Distortion:
+    """Brown–Conrady distortion in OpenCV order (k1, k2, p1, p2, k3).
+
+    The ToF camera uses the 3-coefficient radial form (:meth:`radial`: k1, k2, k3, no tangential
+    terms); the colour camera uses all five.
+    """
+
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = float(getattr(self, f.name))
+            if not np.isfinite(value):
+                raise NonFiniteError(f"Distortion.{f.name}: expected a finite value, got {value}")
+            object.__setattr__(self, f.name, value)
+
+    @classmethod
+    def radial(cls, k1: float, k2: float, k3: float) -> "Distortion":
+        """Brown's 3-coefficient radial polynomial (no tangential terms)."""
+        return cls(k1=k1, k2=k2, p1=0.0, p2=0.0, k3=k3)
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        """(5,) float64 in OpenCV order, as ``cv2.projectPoints`` takes them."""
+        return np.array([self.k1, self.k2, self.p1, self.p2, self.k3])
+
+    @property
+    def is_zero(self) -> bool:
+        return not np.any(self.coefficients)
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics of an image of ``width`` × ``height`` pixels, plus Brown distortion.
+
+    Pixel centres sit at integer coordinates (OpenCV): pixel (row v, column u) covers
+    [u − 0.5, u + 0.5] × [v − 0.5, v + 0.5].
+    """
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion: Distortion = field(default_factory=Distortion)
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise RangeError(f"Intrinsics.{name}: expected a positive integer, got {value!r}")
+            object.__setattr__(self, name, int(value))
+        for name in ("fx", "fy", "cx", "cy"):
+            value = float(getattr(self, name))
+            if not np.isfinite(value):
+                raise NonFiniteError(f"Intrinsics.{name}: expected a finite value, got {value}")
+            object.__setattr__(self, name, value)
+        if self.fx <= 0 or self.fy <= 0:
+            raise RangeError(f"Intrinsics: focal lengths must be > 0, got fx={self.fx}, fy={self.fy}")
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) float64 camera matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(height, width), the shape of an image from this camera."""
+        return (self.height, self.width)
+
+    @property
+    def fov_deg(self) -> tuple[float, float]:
+        """Horizontal and vertical field of view in degrees of the undistorted pinhole."""
+        h = np.degrees(np.arctan(self.cx / self.fx + 0.5 / self.fx) + np.arctan((self.width - 0.5 - self.cx) / self.fx))
+        v = np.degrees(np.arctan(self.cy / self.fy + 0.5 / self.fy) + np.arctan((self.height - 0.5 - self.cy) / self.fy))
+        return float(h), float(v)
+
+    def scaled(self, width: int, height: int) -> "Intrinsics":
+        """The same camera resampled to ``width`` × ``height`` (pixel-centre convention kept)."""
+        sx, sy = width / self.width, height / self.height
+        return Intrinsics(
+            width, height, self.fx * sx, self.fy * sy,
+            (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5, self.distortion,
+        )
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Intrinsics":
+        d = dict(d)
+        dist = Distortion(**d.pop("distortion", {}))
+        return cls(distortion=dist, **d)
+
+
+@dataclass(frozen=True, eq=False)
+class RigidTransform(_ArrayEq):
+    """A rigid transform ``T_dst_from_src`` as a 4×4 float64 matrix, validated on construction.
+
+    ``dst`` and ``src`` optionally name the frames; when both operands of ``@`` name them, the
+    composition checks that they chain (``T_a_from_b @ T_b_from_c``).
+    """
+
+    matrix: np.ndarray
+    dst: str = ""
+    src: str = ""
+
+    def __post_init__(self) -> None:
+        m = check_array(self.matrix, "RigidTransform.matrix", shape=(4, 4), dtype="float").astype(np.float64)
+        if not np.isfinite(m).all():
+            raise NonFiniteError("RigidTransform.matrix: expected finite values, got NaN or inf")
+        r = m[:3, :3]
+        err = np.abs(r.T @ r - np.eye(3)).max()
+        if err > ORTHONORMAL_TOL or abs(np.linalg.det(r) - 1.0) > ORTHONORMAL_TOL:
+            raise InvalidInputError(
+                f"RigidTransform.matrix: rotation is not orthonormal with det +1 "
+                f"(max |RᵀR − I| = {err:.3g}, det = {np.linalg.det(r):.6f})"
+            )
+        if np.any(m[3] != [0.0, 0.0, 0.0, 1.0]):
+            raise InvalidInputError(f"RigidTransform.matrix: last row must be [0, 0, 0, 1], got {m[3]}")
+        _frozen_array(self, "matrix", m)
+
+    @classmethod
+    def identity(cls, dst: str = "", src: str = "") -> "RigidTransform":
+        return cls(np.eye(4), dst, src)
+
+    @classmethod
+    def from_rt(cls, rotation: np.ndarray, translation: np.ndarray, dst: str = "", src: str = "") -> "RigidTransform":
+        """From a (3, 3) rotation and a (3,) translation: ``p_dst = R p_src + t``."""
+        m = np.eye(4)
+        m[:3, :3] = check_array(rotation, "rotation", shape=(3, 3), dtype="float")
+        m[:3, 3] = check_array(translation, "translation", shape=(3,), dtype=("float", "int"))
+        return cls(m, dst, src)
+
+    @classmethod
+    def from_quaternion(cls, translation: np.ndarray, quat_xyzw: np.ndarray, dst: str = "", src: str = "") -> "RigidTransform":
+        """From a translation and a unit quaternion (x, y, z, w), the TUM RGB-D order."""
+        q = check_array(quat_xyzw, "quat_xyzw", shape=(4,), dtype="float", finite=True)
+        n = np.linalg.norm(q)
+        if not 0.5 < n < 2.0:
+            raise InvalidInputError(f"quat_xyzw: expected a unit quaternion, got norm {n}")
+        t = check_array(translation, "translation", shape=(3,), dtype="float", finite=True)
+        return cls.from_rt(Rotation.from_quat(q / n).as_matrix(), t, dst, src)
+
+    @property
+    def rotation(self) -> np.ndarray:
+        return self.matrix[:3, :3]
+
+    @property
+    def translation(self) -> np.ndarray:
+        return self.matrix[:3, 3]
+
+    def quaternion_xyzw(self) -> np.ndarray:
+        """(4,) unit quaternion (x, y, z, w) with w ≥ 0."""
+        q = Rotation.from_matrix(self.rotation).as_quat()
+        return -q if q[3] < 0 else q
+
+    def inverse(self) -> "RigidTransform":
+        m = np.eye(4)
+        r = self.rotation
+        m[:3, :3] = r.T
+        m[:3, 3] = -r.T @ self.translation
+        return RigidTransform(m, self.src, self.dst)
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Transform (..., 3) points; the result has the input's float dtype (float64 for ints)."""
+        p = check_array(points, "points", shape=("*", 3))
+        dtype = p.dtype if p.dtype.kind == "f" else np.float64
+        out = p @ self.rotation.T.astype(dtype) + self.translation.astype(dtype)
+        return out.astype(dtype, copy=False)
+
+    def rotate(self, vectors: np.ndarray) -> np.ndarray:
+        """Rotate (..., 3) direction vectors (no translation)."""
+        v = check_array(vectors, "vectors", shape=("*", 3))
+        dtype = v.dtype if v.dtype.kind == "f" else np.float64
+        return (v @ self.rotation.T.astype(dtype)).astype(dtype, copy=False)
+
+    def __matmul__(self, other: "RigidTransform") -> "RigidTransform":
+        if not isinstance(other, RigidTransform):
+            return NotImplemented
+        if self.src and other.dst and self.src != other.dst:
+            raise InvalidInputError(
+                f"cannot compose T_{self.dst}_from_{self.src} @ T_{other.dst}_from_{other.src}: "
+                f"frames {self.src!r} and {other.dst!r} differ"
+            )
+        m = self.matrix @ other.matrix
+        # Re-orthonormalise so long chains do not drift past the validation tolerance.
+        u, _, vt = np.linalg.svd(m[:3, :3])
+        m[:3, :3] = u @ vt
+        return RigidTransform(m, self.dst, other.src)
+
+
+@dataclass(frozen=True, eq=False)
+class DepthPacket(_ArrayEq):
+    """One point cloud from the ToF depth sensor.
+
+    Attributes:
+        timestamp_ns: capture time, integer nanoseconds.
+        points_m: (N, 3) float32 points in the depth sensor frame (OpenCV axes), metres. N may be 0.
+        confidence: (N,) float32 in [0, 1]; the paper treats < 0.7 as unknown.
+        T_world_from_depth: the depth sensor's pose at capture.
+    """
+
+    timestamp_ns: int
+    points_m: np.ndarray
+    confidence: np.ndarray
+    T_world_from_depth: RigidTransform
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "timestamp_ns", int(self.timestamp_ns))
+        pts = check_array(self.points_m, "points_m", shape=("N", 3), dtype=("float", "int"))
+        conf = check_array(self.confidence, "confidence", shape=(pts.shape[0],), dtype=("float", "int"))
+        check_range(conf, "confidence", 0.0, 1.0)
+        _frozen_array(self, "points_m", pts.astype(np.float32))
+        _frozen_array(self, "confidence", conf.astype(np.float32))
+        if not isinstance(self.T_world_from_depth, RigidTransform):
+            raise InvalidInputError(f"T_world_from_depth: expected a RigidTransform, got {type(self.T_world_from_depth).__name__}")
+
+    @property
+    def kind(self) -> str:
+        return "depth"
+
+
+@dataclass(frozen=True, eq=False)
+class ColourPacket(_ArrayEq):
+    """One colour image as the camera delivers it.
+
+    Attributes:
+        timestamp_ns: capture time, integer nanoseconds.
+        nv21: (H * 3 // 2, W) uint8 Y'UV420sp buffer (Y plane, then interleaved V, U at half resolution).
+        T_world_from_colour: the colour camera's pose at capture.
+    """
+
+    timestamp_ns: int
+    nv21: np.ndarray
+    T_world_from_colour: RigidTransform
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "timestamp_ns", int(self.timestamp_ns))
+        buf = check_array(self.nv21, "nv21", shape=("R", "W"), dtype=np.uint8)
+        rows, width = buf.shape
+        if rows == 0 or width == 0 or rows % 3 or width % 2 or (rows * 2 // 3) % 2:
+            raise InvalidInputError(
+                f"nv21: expected shape (H*3/2, W) with even H, W > 0, got {buf.shape}"
+            )
+        _frozen_array(self, "nv21", buf)
+        if not isinstance(self.T_world_from_colour, RigidTransform):
+            raise InvalidInputError(f"T_world_from_colour: expected a RigidTransform, got {type(self.T_world_from_colour).__name__}")
+
+    @property
+    def kind(self) -> str:
+        return "colour"
+
+    @property
+    def height(self) -> int:
+        return self.nv21.shape[0] * 2 // 3
+
+    @property
+    def width(self) -> int:
+        return self.nv21.shape[1]
+
+
+SensorPacket = Union[DepthPacket, ColourPacket]
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Everything fixed about a device: both cameras' intrinsics and the depth-to-colour extrinsics.
+
+    Attributes:
+        sensor: ``"tango"`` (point clouds + NV21) or ``"kinect"`` (depth images + RGB).
+        depth: intrinsics of the depth sensor (also the RGB-D frame's intrinsics).
+        colour: intrinsics of the colour camera.
+        T_colour_from_depth: maps points from the depth sensor frame into the colour camera frame.
+        depth_rate_hz, colour_rate_hz: nominal packet rates.
+    """
+
+    sensor: str
+    depth: Intrinsics
+    colour: Intrinsics
+    T_colour_from_depth: RigidTransform
+    depth_rate_hz: float = 5.0
+    colour_rate_hz: float = 30.0
+
+    def __post_init__(self) -> None:
+        if self.sensor not in ("tango", "kinect"):
+            raise InvalidInputError(f"Calibration.sensor: expected 'tango' or 'kinect', got {self.sensor!r}")
+
+    def to_dict(self) -> dict:
+        return {
+            "sensor": self.sensor,
+            "depth": self.depth.to_dict(),
+            "colour": self.colour.to_dict(),
+            "T_colour_from_depth": self.T_colour_from_depth.matrix.tolist(),
+            "depth_rate_hz": self.depth_rate_hz,
+            "colour_rate_hz": self.colour_rate_hz,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Calibration":
+        return cls(
+            sensor=d["sensor"],
+            depth=Intrinsics.from_dict(d["depth"]),
+            colour=Intrinsics.from_dict(d["colour"]),
+            T_colour_from_depth=RigidTransform(np.array(d["T_colour_from_depth"], dtype=np.float64), "colour", "depth"),
+            depth_rate_hz=float(d.get("depth_rate_hz", 5.0)),
+            colour_rate_hz=float(d.get("colour_rate_hz", 30.0)),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class RGBDFrame(_ArrayEq):
+    """An RGB-D frame in the depth sensor's image grid.
+
+    Attributes:
+        rgb: (H, W, 3) float32 linear RGB in the current camera's colour space.
+        depth_m: (H, W) float32 z-depth in metres; meaningful only where ``known``.
+        known: (H, W) bool, True where depth_m holds a measurement or an estimate.
+        T_world_from_cam: pose of the frame's camera.
+        intrinsics: the frame's (depth sensor) intrinsics.
+        timestamp_ns: capture time of the depth data.
+    """
+
+    rgb: np.ndarray
+    depth_m: np.ndarray
+    known: np.ndarray
+    T_world_from_cam: RigidTransform
+    intrinsics: Intrinsics
+    timestamp_ns: int
+
+    def __post_init__(self) -> None:
+        h, w = self.intrinsics.height, self.intrinsics.width
+        rgb = check_array(self.rgb, "rgb", shape=(h, w, 3), dtype="float")
+        depth = check_array(self.depth_m, "depth_m", shape=(h, w), dtype="float")
+        known = check_array(self.known, "known", shape=(h, w), dtype="bool")
+        _frozen_array(self, "rgb", rgb.astype(np.float32))
+        _frozen_array(self, "depth_m", depth.astype(np.float32))
+        _frozen_array(self, "known", known)
+        object.__setattr__(self, "timestamp_ns", int(self.timestamp_ns))

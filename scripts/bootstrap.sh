@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Set up everything a fresh machine lacks, idempotently: Debian packages the stack needs, a virtualenv
+# in .venv with torch 2.13.0 (CPU) installed first, then the project and its dependencies.
+# Quick when already done: a stamp keyed by the hash of this file and pyproject.toml skips pip.
+# Source it (". scripts/bootstrap.sh") or run it; it leaves VENV_PY pointing at the venv's python.
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="$ROOT/.venv"
+LOG="$ROOT/.venv-bootstrap.log"
+
+apt_packages=(libusb-1.0-0 libegl1 libgl1 libgomp1)
+missing=()
+for p in "${apt_packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "bootstrap: installing Debian packages: ${missing[*]}" >&2
+  SUDO=""
+  [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq >>"$LOG" 2>&1
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${missing[@]}" >>"$LOG" 2>&1 || {
+    echo "bootstrap: apt-get install failed; see $LOG" >&2; exit 1; }
+fi
+
+stamp_hash="$(cat "$ROOT/scripts/bootstrap.sh" "$ROOT/pyproject.toml" | sha256sum | cut -c1-16)"
+stamp="$VENV/.bootstrap-$stamp_hash"
+if [ ! -f "$stamp" ]; then
+  echo "bootstrap: setting up $VENV (a few minutes the first time; log in $LOG)" >&2
+  [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
+  {
+    "$VENV/bin/python" -m pip install -q --upgrade pip
+    # The CPU build of torch first: an unpinned torch pulled in later would be a multi-GB CUDA build.
+    "$VENV/bin/python" -m pip install -q torch==2.13.0
+    "$VENV/bin/python" -m pip install -q -e "$ROOT[dev]"
+  } >>"$LOG" 2>&1 || { echo "bootstrap: pip failed; see $LOG" >&2; tail -20 "$LOG" >&2; exit 1; }
+  rm -f "$VENV"/.bootstrap-*
+  touch "$stamp"
+fi
+export VENV_PY="$VENV/bin/python"

@@ -1,0 +1,220 @@
+"""Scene description: triangle meshes whose surfaces carry linear outgoing radiance.
+
+A scene is a list of :class:`SceneObject`; each has a shape (quad, box, cylinder, sphere), a radiance
+(constant RGB or a procedural texture over a quad's (s, t) ∈ [0, 1]²), sensor flags (``emissive``,
+``shiny``, ``dark``) that drive the ToF confidence model, and a timeline (visible interval, radiance
+scale steps such as a lamp dimming). There is no light transport: the radiance *is* what a camera sees.
+
+Scenes are written in YAML under ``sequences/scenes/``; :func:`load_scene` reads one by name or path.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+import yaml
+
+from rgbd_envmap.errors import InvalidInputError
+
+__all__ = ["Texture", "SceneObject", "Scene", "load_scene", "SCENES_DIR", "FLAG_BITS"]
+
+SCENES_DIR = Path(__file__).resolve().parent.parent / "sequences" / "scenes"
+
+#: Bit of each sensor flag in the per-hit flag mask.
+FLAG_BITS = {"emissive": 1, "shiny": 2, "dark": 4}
+
+
+@dataclass(frozen=True)
+class Texture:
+    """Procedural radiance over a quad's (s, t) ∈ [0, 1]² (s along ``u``, t along ``v``).
+
+    kinds: ``checker`` (``colours`` = 2 RGB, ``cells`` = (ns, nt)), ``gradient`` (``colours`` = RGB at
+    t = 0 and t = 1), ``patches`` (``cells`` = (ns, nt) grid of ``colours`` in row-major order of t).
+    """
+
+    kind: str
+    colours: np.ndarray
+    cells: tuple[int, int] = (1, 1)
+
+    def __post_init__(self) -> None:
+        colours = np.asarray(self.colours, dtype=np.float32).reshape(-1, 3)
+        object.__setattr__(self, "colours", colours)
+        need = {"checker": 2, "gradient": 2, "patches": self.cells[0] * self.cells[1]}
+        if self.kind not in need:
+            raise InvalidInputError(f"texture kind: unknown {self.kind!r}; valid kinds are {sorted(need)}")
+        if len(colours) != need[self.kind]:
+            raise InvalidInputError(f"texture {self.kind}: expected {need[self.kind]} colours, got {len(colours)}")
+        if not np.isfinite(colours).all() or (colours < 0).any():
+            raise InvalidInputError("texture colours must be finite and ≥ 0")
+
+    def sample(self, s: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Radiance (N, 3) float32 at (N,) texture coordinates (clipped to [0, 1])."""
+        s = np.clip(s, 0.0, 1.0)
+        t = np.clip(t, 0.0, 1.0)
+        if self.kind == "gradient":
+            return (self.colours[0] * (1.0 - t)[:, None] + self.colours[1] * t[:, None]).astype(np.float32)
+        i = np.minimum((s * self.cells[0]).astype(np.int64), self.cells[0] - 1)
+        j = np.minimum((t * self.cells[1]).astype(np.int64), self.cells[1] - 1)
+        if self.kind == "checker":
+            return self.colours[(i + j) % 2]
+        return self.colours[j * self.cells[0] + i]
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    """One emitting mesh.
+
+    Attributes:
+        name: unique within the scene.
+        vertices: (V, 3) float64 world coordinates, metres. faces: (F, 3) int.
+        radiance: (3,) linear RGB, or None when ``texture`` is set.
+        texture: procedural radiance; only for quads (``quad_frame`` set).
+        quad_frame: (corner, u, v) of a quad, for texture lookup.
+        flags: subset of ``emissive``, ``shiny``, ``dark``.
+        visible_from_s, visible_until_s: the object exists for t in [from, until).
+        scale_steps: ((t_s, scale), ...) radiance multiplier from each time on (1 before the first).
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    radiance: np.ndarray | None = None
+    texture: Texture | None = None
+    quad_frame: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    flags: frozenset[str] = frozenset()
+    visible_from_s: float = -np.inf
+    visible_until_s: float = np.inf
+    scale_steps: tuple[tuple[float, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        unknown = set(self.flags) - set(FLAG_BITS)
+        if unknown:
+            raise InvalidInputError(f"{self.name}: unknown flags {sorted(unknown)}; valid are {sorted(FLAG_BITS)}")
+        if (self.radiance is None) == (self.texture is None):
+            raise InvalidInputError(f"{self.name}: give exactly one of radiance or texture")
+        if self.texture is not None and self.quad_frame is None:
+            raise InvalidInputError(f"{self.name}: textures are supported on quads only")
+        if self.radiance is not None:
+            rad = np.asarray(self.radiance, dtype=np.float32).reshape(3)
+            if not np.isfinite(rad).all() or (rad < 0).any():
+                raise InvalidInputError(f"{self.name}: radiance must be finite and ≥ 0, got {rad}")
+            object.__setattr__(self, "radiance", rad)
+
+    def visible_at(self, t_s: float) -> bool:
+        return self.visible_from_s <= t_s < self.visible_until_s
+
+    def scale_at(self, t_s: float) -> float:
+        scale = 1.0
+        for t_step, s in self.scale_steps:
+            if t_s >= t_step:
+                scale = s
+        return scale
+
+    @property
+    def flag_bits(self) -> int:
+        return sum(FLAG_BITS[f] for f in self.flags)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A named set of objects and the virtual object's position (the default EM origin)."""
+
+    name: str
+    objects: tuple[SceneObject, ...]
+    virtual_object_position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    default_trajectory: str = "orbit"
+
+    def __post_init__(self) -> None:
+        names = [o.name for o in self.objects]
+        if len(set(names)) != len(names):
+            raise InvalidInputError(f"scene {self.name}: object names must be unique, got {names}")
+        object.__setattr__(self, "virtual_object_position", np.asarray(self.virtual_object_position, dtype=np.float64))
+
+    def object(self, name: str) -> SceneObject:
+        for o in self.objects:
+            if o.name == name:
+                return o
+        raise KeyError(name)
+
+    def change_times(self) -> list[float]:
+        """Times at which the set of visible objects changes."""
+        times = {o.visible_from_s for o in self.objects} | {o.visible_until_s for o in self.objects}
+        return sorted(t for t in times if np.isfinite(t))
+
+
+def _quad(corner, u, v):
+    corner, u, v = (np.asarray(x, dtype=np.float64) for x in (corner, u, v))
+    verts = np.stack([corner, corner + u, corner + u + v, corner + v])
+    return verts, np.array([[0, 1, 2], [0, 2, 3]]), (corner, u, v)
+
+
+def _rot_z(yaw_deg: float) -> np.ndarray:
+    m = np.eye(4)
+    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
+    m[:2, :2] = [[c, -s], [s, c]]
+    return m
+
+
+def _build_shape(spec: dict, name: str):
+    shape = spec.get("shape")
+    if shape == "quad":
+        return _quad(spec["corner"], spec["u"], spec["v"])
+    if shape == "box":
+        m = _rot_z(spec.get("yaw_deg", 0.0))
+        m[:3, 3] = spec["centre"]
+        mesh = trimesh.creation.box(extents=spec["size"], transform=m)
+    elif shape == "cylinder":
+        m = np.eye(4)
+        m[:3, 3] = spec["centre"]
+        mesh = trimesh.creation.cylinder(radius=spec["radius"], height=spec["height"], sections=24, transform=m)
+    elif shape == "sphere":
+        mesh = trimesh.creation.icosphere(subdivisions=2, radius=spec["radius"])
+        mesh.apply_translation(spec["centre"])
+    else:
+        raise InvalidInputError(f"object {name}: unknown shape {shape!r}; valid shapes are box, cylinder, quad, sphere")
+    return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64), None
+
+
+def _object_from_spec(spec: dict) -> SceneObject:
+    name = spec.get("name")
+    if not name:
+        raise InvalidInputError(f"scene object without a name: {spec}")
+    verts, faces, frame = _build_shape(spec, name)
+    rad = spec.get("radiance")
+    texture = None
+    if isinstance(rad, dict):
+        texture = Texture(rad["texture"], np.asarray(rad["colours"], dtype=np.float32), tuple(rad.get("cells", (1, 1))))
+        rad = None
+    vis = spec.get("visible", {}) or {}
+    steps = tuple((float(s["t"]), float(s["scale"])) for s in spec.get("timeline", []) or [])
+    return SceneObject(
+        name=name, vertices=verts, faces=faces, radiance=rad, texture=texture, quad_frame=frame,
+        flags=frozenset(spec.get("flags", []) or []),
+        visible_from_s=float(vis.get("from", -np.inf)), visible_until_s=float(vis.get("until", np.inf)),
+        scale_steps=tuple(sorted(steps)),
+    )
+
+
+def scene_from_dict(d: dict) -> Scene:
+    """Build a :class:`Scene` from its YAML mapping."""
+    return Scene(
+        name=d.get("name", "unnamed"),
+        objects=tuple(_object_from_spec(o) for o in d.get("objects", []) or []),
+        virtual_object_position=np.asarray(d.get("virtual_object_position", [0.0, 0.0, 0.0]), dtype=np.float64),
+        default_trajectory=d.get("default_trajectory", "orbit"),
+    )
+
+
+def load_scene(name_or_path: str | Path) -> Scene:
+    """Load a scene by name (a file ``sequences/scenes/NAME.yaml``) or by path."""
+    path = Path(name_or_path)
+    if not path.suffix:
+        path = SCENES_DIR / f"{name_or_path}.yaml"
+    if not path.is_file():
+        known = sorted(p.stem for p in SCENES_DIR.glob("*.yaml"))
+        raise InvalidInputError(f"scene {name_or_path!r}: no file {path}; known scenes are {known}")
+    with open(path) as f:
+        return scene_from_dict(yaml.safe_load(f) or {})
