@@ -68,7 +68,7 @@ def _unit_rays_cached(intrinsics: Intrinsics) -> np.ndarray:
     return (rays / np.linalg.norm(rays, axis=1, keepdims=True)).astype(np.float32)
 
 
-def colour_intrinsics(width: int, height: int, hfov_deg: float = 62.0, distortion: Distortion | None = None) -> Intrinsics:
+def colour_intrinsics(width: int, height: int, hfov_deg: float = 78.0, distortion: Distortion | None = None) -> Intrinsics:
     """Intrinsics of the colour camera at a given resolution: square pixels, centred principal point."""
     fx = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
     dist = distortion if distortion is not None else Distortion(0.06, -0.12, 0.0006, -0.0004, 0.04)
@@ -81,7 +81,8 @@ class ColourCameraConfig:
 
     width: int = 1920
     height: int = 1080
-    hfov_deg: float = 62.0
+    #: 78° × 49° at 16:9, a typical phone main camera; it covers the ToF camera's 58.5° × 46.5°.
+    hfov_deg: float = 78.0
     distortion: Distortion = field(default_factory=lambda: Distortion(0.06, -0.12, 0.0006, -0.0004, 0.04))
     rate_hz: float = 30.0
     #: photon shot noise variance per unit signal, and read-noise σ (linear units of full scale).

@@ -1,6 +1,6 @@
 """Tango-like time-of-flight depth camera: a point cloud with per-point confidence.
 
-Model (DESIGN §5): 224×172 pixels, ~61°×49° field of view, 3-coefficient radial distortion, returns
+Model (DESIGN §5): 224×172 pixels, 58.5°×46.5° field of view, 3-coefficient radial distortion, returns
 between 0.1 and 4 m, Gaussian range noise of ``noise_rel`` × range (1 %). Confidence in [0, 1] is a
 product of factors, each from a known failure of ToF sensing:
 
@@ -29,7 +29,8 @@ __all__ = ["ToFConfig", "ToFCapture", "capture_tof"]
 
 
 def _default_tof_intrinsics() -> Intrinsics:
-    return Intrinsics(224, 172, 190.0, 190.0, 111.5, 85.5, Distortion.radial(-0.04, 0.012, -0.002))
+    # fx = fy = 200 px: 58.5° × 46.5°, inside the colour camera's 78° × 49° so every depth pixel has colour.
+    return Intrinsics(224, 172, 200.0, 200.0, 111.5, 85.5, Distortion.radial(-0.04, 0.012, -0.002))
 
 
 @dataclass(frozen=True)
