@@ -1,0 +1,12 @@
+"""Depth-image stages of the RGB-D frame: reliability marking (paper 003 §5.2) and hole filling
+(§4.2, eq. 1), each with named baselines behind one method dispatcher.
+
+``mark_reliable`` lives in :mod:`rgbd_envmap.depth.reliability`, ``fill_holes`` in
+:mod:`rgbd_envmap.depth.holes`; both are re-exported here (DESIGN §9: ``depth.mark_reliable``,
+``depth.fill_holes``).
+"""
+
+from rgbd_envmap.depth.holes import FILL_METHODS, fill_holes
+from rgbd_envmap.depth.reliability import RELIABILITY_METHODS, mark_reliable
+
+__all__ = ["fill_holes", "mark_reliable", "FILL_METHODS", "RELIABILITY_METHODS"]
