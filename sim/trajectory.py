@@ -5,6 +5,7 @@ Kinds (YAML under ``sequences/trajectories/``):
 * ``orbit``: the device circles a centre; ``facing: outward`` looks away from it (scanning the room
   from near the virtual object, with a pitch sweep to reach floor and ceiling), ``inward`` looks at it.
 * ``waypoints``: piecewise-linear positions and look-at targets at given times (a handheld sweep).
+* ``sequence``: several of the above in turn, each ``until_s`` a time (global session time).
 
 Any kind takes ``jitter_m`` / ``jitter_deg``: smooth hand shake, a sum of seeded sinusoids (0.3–2 Hz),
 part of the *true* pose. Tracking noise (error in the *reported* pose) belongs to the device.
@@ -23,7 +24,9 @@ from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.geometry import look_at
 from rgbd_envmap.types import RigidTransform
 
-__all__ = ["Jitter", "OrbitTrajectory", "WaypointTrajectory", "Trajectory", "load_trajectory", "TRAJECTORIES_DIR"]
+__all__ = [
+    "Jitter", "OrbitTrajectory", "WaypointTrajectory", "SequenceTrajectory", "Trajectory", "load_trajectory", "TRAJECTORIES_DIR",
+]
 
 TRAJECTORIES_DIR = Path(__file__).resolve().parent.parent / "sequences" / "trajectories"
 
@@ -129,13 +132,39 @@ class WaypointTrajectory:
         return self.jitter.apply(look_at(pos, tgt), t_s)
 
 
-Trajectory = OrbitTrajectory | WaypointTrajectory
+@dataclass(frozen=True)
+class SequenceTrajectory:
+    """Part i drives the device for t < ``until_s[i]`` (and after the previous part); the last part
+    runs on forever. Times are session times."""
+
+    parts: tuple
+    until_s: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if not self.parts or len(self.until_s) != len(self.parts) - 1:
+            raise InvalidInputError("sequence: give one until_s for every part but the last")
+        if np.any(np.diff(self.until_s) <= 0):
+            raise InvalidInputError(f"sequence: until_s must increase strictly, got {self.until_s}")
+
+    def pose(self, t_s: float) -> RigidTransform:
+        i = int(np.searchsorted(np.asarray(self.until_s), t_s, side="right"))
+        return self.parts[i].pose(t_s)
+
+
+Trajectory = OrbitTrajectory | WaypointTrajectory | SequenceTrajectory
 
 
 def trajectory_from_dict(d: dict) -> Trajectory:
     d = dict(d)
     kind = d.pop("kind", None)
     d.pop("name", None)
+    if kind == "sequence":
+        parts = [dict(p) for p in d.get("parts", []) or []]
+        if not parts:
+            raise InvalidInputError("sequence: no parts")
+        until = [float(p.pop("until_s")) for p in parts[:-1]]
+        parts[-1].pop("until_s", None)
+        return SequenceTrajectory(tuple(trajectory_from_dict(p) for p in parts), tuple(until))
     jitter = Jitter(**(d.pop("jitter", None) or {}))
     if kind == "orbit":
         if "centre" in d:
@@ -148,7 +177,7 @@ def trajectory_from_dict(d: dict) -> Trajectory:
             targets=tuple(tuple(float(x) for x in p) for p in d["targets"]),
             jitter=jitter,
         )
-    raise InvalidInputError(f"trajectory kind: unknown {kind!r}; valid kinds are ['orbit', 'waypoints']")
+    raise InvalidInputError(f"trajectory kind: unknown {kind!r}; valid kinds are ['orbit', 'sequence', 'waypoints']")
 
 
 def load_trajectory(name_or_path: str | Path) -> Trajectory:

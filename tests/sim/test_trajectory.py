@@ -57,7 +57,7 @@ def test_jitter_is_smooth_bounded_and_seeded():
 
 
 def test_shipped_trajectories_load():
-    for name in ("orbit", "orbit_inward", "sweep"):
+    for name in ("orbit", "orbit_inward", "sweep", "orbit_then_removal_pass"):
         T = load_trajectory(name).pose(1.0)
         assert np.isfinite(T.matrix).all()
 
@@ -80,3 +80,15 @@ def test_bad_trajectories_raise(spec):
 def test_nan_pose_is_a_clear_error():
     with pytest.raises(NonFiniteError, match="eye"):
         OrbitTrajectory(centre=(np.nan, 0.0, 0.0)).pose(0.0)
+
+
+def test_sequence_switches_parts_at_the_given_times():
+    seq = trajectory_from_dict({"kind": "sequence", "parts": [
+        {"kind": "waypoints", "until_s": 2.0, "times_s": [0.0], "positions": [[0, 0, 1]], "targets": [[1, 0, 1]]},
+        {"kind": "waypoints", "times_s": [0.0], "positions": [[5, 0, 1]], "targets": [[6, 0, 1]]},
+    ]})
+    np.testing.assert_allclose(seq.pose(1.99).translation, [0, 0, 1])
+    np.testing.assert_allclose(seq.pose(2.0).translation, [5, 0, 1])
+    assert np.isfinite(load_trajectory("orbit_then_removal_pass").pose(9.5).matrix).all()
+    with pytest.raises(InvalidInputError):
+        trajectory_from_dict({"kind": "sequence", "parts": []})

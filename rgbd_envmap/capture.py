@@ -1,0 +1,115 @@
+"""Environment capture (paper 003 §5–§6): colour correction against the map, then the map update.
+
+:class:`EnvironmentCapture` holds the environment map and the latest accepted colour-correction
+matrix (current camera colours → reference colours). Per ingested depth packet:
+
+1. The first frame defines the reference colour space: its matrix is the identity and it is
+   projected into the empty map.
+2. Later frames: pairs between the frame's *reliable* pixels (marked before hole filling) and the
+   map (|depth difference| ≤ 1 cm) → a 3×3 matrix. Gate: fewer than 500 pairs or MSE > 5e-2 (or an
+   ill-conditioned fit) → the previous accepted matrix stays in force for correcting colours and the
+   frame is **not** projected; the step records why.
+3. An accepted frame is corrected with its matrix and projected with the update rules
+   (:func:`rgbd_envmap.envmap.update`), hole-filled pixels included.
+
+With ``colour_correction=False`` every frame is projected uncorrected (the paper's Fig. 4 left);
+``freeze=True`` keeps the map as it is (a static scene already captured) and only tracks the matrix.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rgbd_envmap.colour import CCMResult, apply_ccm, estimate_ccm
+from rgbd_envmap.envmap import EnvironmentMap, UpdateConfig, UpdateStats, collect_pairs, frame_points, update
+from rgbd_envmap.types import RGBDFrame
+
+__all__ = ["CaptureConfig", "CaptureStep", "EnvironmentCapture"]
+
+
+@dataclass(frozen=True)
+class CaptureConfig:
+    """Colour-correction and map settings (paper defaults)."""
+
+    height: int = 1000
+    width: int = 2000
+    #: pairs need the map's depth within this distance of the sample's (metres).
+    pair_max_depth_diff_m: float = 0.01
+    colour_correction: bool = True
+    #: "ridge" by default: plain least squares fits noise on the grey-dominated pairs of a room
+    #: (docs/colour_correction.md); "least_squares" is the paper's fit.
+    ccm_method: str = "ridge"
+    max_mse: float = 5e-2
+    min_pairs: int = 500
+    update: UpdateConfig = field(default_factory=UpdateConfig)
+    freeze: bool = False
+
+
+@dataclass(frozen=True)
+class CaptureStep:
+    """What one frame did.
+
+    Attributes:
+        timestamp_ns: the frame's.
+        reference: this frame defined the reference colour space.
+        ccm: the fit for this frame (None for the reference frame or with correction off).
+        projected: the frame went into the map.
+        reason: why not, when not ("" otherwise).
+        n_pairs: colour pairs found.
+        matrix: (3, 3) the accepted matrix in force after this frame.
+        update: what the map update did (None when not projected).
+    """
+
+    timestamp_ns: int
+    reference: bool
+    ccm: CCMResult | None
+    projected: bool
+    reason: str
+    n_pairs: int
+    matrix: np.ndarray
+    update: UpdateStats | None
+
+
+class EnvironmentCapture:
+    """The environment map and the colour-correction state that feeds it."""
+
+    def __init__(self, origin: np.ndarray, config: CaptureConfig = CaptureConfig()) -> None:
+        self.config = config
+        self.em = EnvironmentMap(config.height, config.width, origin)
+        self.matrix = np.eye(3)
+        self.has_reference = False
+
+    def process(self, raw: RGBDFrame, reliable: np.ndarray, filled: RGBDFrame) -> CaptureStep:
+        """Process one ingested frame: ``raw`` (before hole filling) with its ``reliable`` mask, and
+        ``filled`` (after hole filling), both in the current camera's colour space."""
+        cfg = self.config
+        ts = raw.timestamp_ns
+        if not self.has_reference:
+            if not filled.known.any():
+                return CaptureStep(ts, False, None, False, "no known pixels for a reference frame", 0, self.matrix.copy(), None)
+            self.has_reference = True
+            stats = None if cfg.freeze else self._project(filled, np.eye(3))
+            return CaptureStep(ts, True, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
+        if not cfg.colour_correction:
+            stats = None if cfg.freeze else self._project(filled, np.eye(3))
+            return CaptureStep(ts, False, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
+        src, dst = collect_pairs(
+            self.em, frame_points(raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam), raw.rgb[reliable],
+            cfg.pair_max_depth_diff_m,
+        )
+        ccm = estimate_ccm(src, dst, method=cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs)
+        if not ccm.accepted:
+            return CaptureStep(ts, False, ccm, False, ccm.reason, len(src), self.matrix.copy(), None)
+        self.matrix = np.array(ccm.matrix, dtype=np.float64)
+        if cfg.freeze:
+            return CaptureStep(ts, False, ccm, False, "frozen", len(src), self.matrix.copy(), None)
+        stats = self._project(filled, self.matrix)
+        return CaptureStep(ts, False, ccm, True, "", len(src), self.matrix.copy(), stats)
+
+    def _project(self, frame: RGBDFrame, matrix: np.ndarray) -> UpdateStats:
+        pts = frame_points(frame.depth_m, frame.known, frame.intrinsics, frame.T_world_from_cam)
+        colours = apply_ccm(frame.rgb[frame.known], matrix)
+        focal = 0.5 * (frame.intrinsics.fx + frame.intrinsics.fy)
+        return update(self.em, pts, colours, frame.T_world_from_cam.translation, focal, self.config.update)

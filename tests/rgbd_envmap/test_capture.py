@@ -1,0 +1,84 @@
+"""The capture loop: reference frame, colour pairs → matrix → gate → projection."""
+
+import numpy as np
+import pytest
+
+from rgbd_envmap.capture import CaptureConfig, EnvironmentCapture
+from rgbd_envmap.geometry import look_at, pixel_rays
+from rgbd_envmap.types import Intrinsics, RGBDFrame, RigidTransform
+from sim.raycast import SceneRaycaster
+from sim.scene import scene_from_dict
+from tests.sim.helpers import box_room
+
+INTR = Intrinsics(96, 72, 70.0, 70.0, 47.5, 35.5)
+SMALL = CaptureConfig(height=200, width=400, min_pairs=200)
+
+
+@pytest.fixture(scope="module")
+def colourful_room():
+    patches = {"texture": "patches", "cells": [3, 2], "colours": [[0.8, 0.2, 0.1], [0.2, 0.7, 0.2], [0.1, 0.2, 0.8],
+                                                                  [0.7, 0.7, 0.2], [0.6, 0.3, 0.6], [0.3, 0.6, 0.7]]}
+    extra = [{"name": "chart", "shape": "quad", "corner": [1.99, -1.5, -1.0], "u": [0, 3.0, 0], "v": [0, 0, 2.0], "radiance": patches}]
+    return SceneRaycaster(scene_from_dict(box_room(radiance=(0.4, 0.4, 0.4), extra=extra)))
+
+
+def _frame(rc, T: RigidTransform, gains=(1.0, 1.0, 1.0), ts=0) -> RGBDFrame:
+    rays = pixel_rays(INTR).reshape(-1, 3)
+    dirs = T.rotate(rays / np.linalg.norm(rays, axis=1, keepdims=True))
+    hits = rc.cast(T.translation, dirs, 0.0)
+    z = (hits.distance_m / np.linalg.norm(rays, axis=1)).reshape(INTR.shape)
+    rgb = np.clip(hits.radiance * np.asarray(gains, np.float32), 0, 1).reshape(*INTR.shape, 3)
+    return RGBDFrame(rgb, z, hits.hit.reshape(INTR.shape), T, INTR, ts)
+
+
+def _step(cap, frame):
+    return cap.process(frame, frame.known, frame)
+
+
+def test_first_frame_is_the_reference_and_later_gains_are_undone(colourful_room):
+    cap = EnvironmentCapture(np.zeros(3), SMALL)
+    T = look_at([0.0, 0.0, 0.0], [2.0, 0.1, 0.0])
+    first = _step(cap, _frame(colourful_room, T))
+    assert first.reference and first.projected and cap.em.valid.any()
+    gains = np.array([1.6, 1.0, 0.7])
+    second = _step(cap, _frame(colourful_room, look_at([0.0, 0.0, 0.0], [2.0, 0.2, 0.05]), gains, 1))
+    assert second.projected and second.n_pairs > 1000
+    # Within 5 %: the two views differ by ~6°, so pairs straddling patch edges mismatch (plain least
+    # squares lands on the same matrix to 1e-3; the ridge prior is not what limits it).
+    np.testing.assert_allclose(second.matrix, np.diag(1.0 / gains), atol=0.05 * (1.0 / gains).max())
+    # The map stays in the reference colour space (the first frame's: gains 1, i.e. true radiance).
+    wall = cap.em.valid & (np.abs(cap.em.radiance - 0.4).max(axis=-1) < 0.05)
+    assert wall.sum() > 100
+
+
+def test_no_overlap_is_rejected_and_leaves_map_and_matrix_alone(colourful_room):
+    cap = EnvironmentCapture(np.zeros(3), SMALL)
+    _step(cap, _frame(colourful_room, look_at([0.0, 0.0, 0.0], [2.0, 0.0, 0.0])))
+    before = cap.em.valid.copy()
+    step = _step(cap, _frame(colourful_room, look_at([0.0, 0.0, 0.0], [-2.0, 0.0, 0.0]), (2.0, 2.0, 2.0), 1))
+    assert not step.projected and step.reason.startswith("too few pairs")
+    np.testing.assert_array_equal(cap.em.valid, before)
+    np.testing.assert_array_equal(step.matrix, np.eye(3))
+
+
+def test_correction_off_projects_every_frame_uncorrected(colourful_room):
+    cap = EnvironmentCapture(np.zeros(3), CaptureConfig(height=200, width=400, colour_correction=False))
+    _step(cap, _frame(colourful_room, look_at([0.0, 0.0, 0.0], [2.0, 0.0, 0.0])))
+    step = _step(cap, _frame(colourful_room, look_at([0.0, 0.0, 0.0], [-2.0, 0.0, 0.0]), (0.5, 0.5, 0.5), 1))
+    assert step.projected and step.ccm is None
+    back = cap.em.valid & (cap.em.depth_m > 0)
+    assert np.isclose(cap.em.radiance[back][:, 0], 0.2, atol=0.01).any()  # the halved wall went in as is
+
+
+def test_freeze_keeps_the_map(colourful_room):
+    cap = EnvironmentCapture(np.zeros(3), CaptureConfig(height=200, width=400, min_pairs=200, freeze=True))
+    step = _step(cap, _frame(colourful_room, look_at([0.0, 0.0, 0.0], [2.0, 0.0, 0.0])))
+    assert step.reference and not step.projected and not cap.em.valid.any()
+
+
+def test_empty_frame_cannot_be_a_reference(colourful_room):
+    cap = EnvironmentCapture(np.zeros(3), SMALL)
+    frame = _frame(colourful_room, look_at([0.0, 0.0, 0.0], [2.0, 0.0, 0.0]))
+    empty = RGBDFrame(frame.rgb, frame.depth_m, np.zeros(INTR.shape, bool), frame.T_world_from_cam, INTR, 0)
+    step = _step(cap, empty)
+    assert not step.reference and not step.projected and not cap.has_reference

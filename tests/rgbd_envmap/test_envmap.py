@@ -1,0 +1,252 @@
+"""Environment map state, update rules, pairs and translation, against closed forms, an independent
+pixel mapping (geometry.equirect_pixel_index) and ray-cast ground truth at displaced origins."""
+
+import numpy as np
+import pytest
+
+from rgbd_envmap.envmap import (
+    EnvironmentMap,
+    UpdateConfig,
+    collect_pairs,
+    is_backface,
+    rule_closer,
+    rule_empty,
+    rule_removal,
+    rule_trusted,
+    translate,
+    update,
+)
+from rgbd_envmap.errors import InvalidInputError, ShapeError, UnknownMethodError
+from rgbd_envmap.geometry import equirect_directions, equirect_pixel_index
+from sim.groundtruth import render_envmap
+from sim.raycast import SceneRaycaster
+from sim.scene import scene_from_dict
+from tests.sim.helpers import box_room
+
+H, W = 100, 200
+POINT = UpdateConfig(splat=False)
+FOCAL = 200.0
+
+
+def _one(em, point, colour=(0.5, 0.25, 0.125), device=(0.0, 0.0, 0.0), config=POINT):
+    return update(em, np.array([point], float), np.array([colour], np.float32), np.array(device, float), FOCAL, config)
+
+
+def _pixel(point, origin=(0.0, 0.0, 0.0)):
+    r, c, _ = equirect_pixel_index(np.asarray(point, float) - origin, H, W)
+    return int(r), int(c)
+
+
+def test_new_map_is_empty_and_planar():
+    em = EnvironmentMap(H, W, (1.0, 2.0, 3.0))
+    assert not em.valid.any() and em.radiance.shape == (H, W, 3) and em.radiance_planes.flags.c_contiguous
+    em.radiance_planes[1, 5, 7] = 0.75
+    assert em.radiance[5, 7, 1] == 0.75  # radiance is a view of the planar storage
+
+
+def test_from_arrays_round_trip_and_copy_independence():
+    rng = np.random.default_rng(0)
+    rad, depth, valid = rng.random((H, W, 3), np.float32), rng.random((H, W), np.float32), rng.random((H, W)) > 0.5
+    em = EnvironmentMap.from_arrays(rad, depth, valid, np.zeros(3))
+    np.testing.assert_array_equal(em.radiance, rad)
+    np.testing.assert_array_equal(em.depth_m, depth)
+    np.testing.assert_array_equal(em.valid, valid)
+    cp = em.copy()
+    cp.depth_m[:] = 0
+    assert em.depth_m.any()
+    with pytest.raises(ShapeError):
+        EnvironmentMap.from_arrays(rad, depth[:-1], valid, np.zeros(3))
+    with pytest.raises(InvalidInputError):
+        EnvironmentMap(H, W, (np.nan, 0, 0))
+
+
+def test_rule_functions():
+    assert rule_empty(False) and not rule_empty(True)
+    assert rule_closer(1.0, 2.0) and not rule_closer(2.0, 1.0) and not rule_closer(1.0, 1.0)
+    assert rule_trusted(0.05, 0.1) and not rule_trusted(0.1, 0.1)
+    assert is_backface(3.0, 2.0, 4.0) and is_backface(3.0, 4.0, 2.0) and not is_backface(1.0, 2.0, 2.5)
+    assert rule_removal(1.0, 0.01, 2.0, 2.5, 0.03)
+    assert not rule_removal(1.0, 0.05, 2.0, 2.5, 0.03)  # too far from the ray
+    assert not rule_removal(3.0, 0.01, 2.0, 2.5, 0.03)  # backface
+
+
+def test_empty_pixel_takes_the_sample_in_the_right_place():
+    em = EnvironmentMap(H, W)
+    stats = _one(em, (1.0, 2.0, 0.5))
+    r, c = _pixel((1.0, 2.0, 0.5))
+    assert em.valid.sum() == 1 and em.valid[r, c] and stats.taken_empty == 1
+    assert em.depth_m[r, c] == pytest.approx(np.linalg.norm([1.0, 2.0, 0.5]))
+    np.testing.assert_allclose(em.radiance[r, c], [0.5, 0.25, 0.125])
+
+
+def test_update_pixels_agree_with_the_geometry_mapping():
+    rng = np.random.default_rng(1)
+    pts = rng.normal(size=(5000, 3))
+    em = EnvironmentMap(H, W)
+    update(em, pts, np.ones((5000, 3), np.float32), np.zeros(3), FOCAL, POINT)
+    rows, cols, _ = equirect_pixel_index(pts, H, W)
+    expected = np.zeros((H, W), bool)
+    expected[rows, cols] = True
+    np.testing.assert_array_equal(em.valid, expected)
+
+
+def test_closer_sample_moves_depth_to_the_mean_and_farther_is_ignored():
+    em = EnvironmentMap(H, W)
+    _one(em, (2.0, 0.0, 0.0), colour=(1, 0, 0), device=(0.5, 0.5, 0.5))
+    r, c = _pixel((2.0, 0.0, 0.0))
+    stats = _one(em, (3.0, 0.0, 0.0), colour=(0, 1, 0), device=(0.5, 0.5, 0.5))
+    assert stats.taken == 0 and em.depth_m[r, c] == pytest.approx(2.0)
+    stats = _one(em, (1.0, 0.0, 0.0), colour=(0, 0, 1), device=(0.5, 0.5, 0.5))
+    assert stats.taken_closer == 1 and em.depth_m[r, c] == pytest.approx(1.5)
+    np.testing.assert_allclose(em.radiance[r, c], [0, 0, 1])
+
+
+def test_within_a_frame_the_closest_sample_wins():
+    em = EnvironmentMap(H, W)
+    pts = np.array([[3.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0]])
+    cols = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
+    update(em, pts, cols, np.zeros(3), FOCAL, POINT)
+    r, c = _pixel((1.0, 0, 0))
+    assert em.valid.sum() == 1 and em.depth_m[r, c] == pytest.approx(1.0)
+    np.testing.assert_allclose(em.radiance[r, c], [0, 1, 0])
+
+
+def test_trusted_sphere_overrides():
+    em = EnvironmentMap(H, W)
+    _one(em, (2.0, 0, 0), device=(1.0, 1.0, 0.0))
+    stats = _one(em, (4.0, 0, 0), colour=(0, 1, 0), device=(0.05, 0.0, 0.05))  # 7 cm from the origin
+    r, c = _pixel((2.0, 0, 0))
+    assert stats.taken_trusted == 1 and em.depth_m[r, c] == pytest.approx(3.0)
+
+
+def test_removal_when_the_device_is_on_the_ray_and_not_a_backface():
+    # A surface at 1 m along +x was removed; the wall behind it is at 3 m.
+    em = EnvironmentMap(H, W)
+    _one(em, (1.0, 0, 0), colour=(1, 0, 0), device=(0.5, 0.5, 0.0))
+    r, c = _pixel((1.0, 0, 0))
+    d = equirect_directions(H, W)[r, c].astype(float)
+    # Device 1 cm off the pixel's ray, 0.5 m out: between the origin and the stored surface.
+    side = np.cross(d, [0, 0, 1.0])
+    side /= np.linalg.norm(side)
+    on_ray = 0.5 * d + 0.01 * side
+    stats = _one(em, 3.0 * d, colour=(0, 1, 0), device=on_ray)
+    assert stats.taken_removal == 1 and em.depth_m[r, c] == pytest.approx(2.0)
+    np.testing.assert_allclose(em.radiance[r, c], [0, 1, 0])
+    # 5 cm off the ray: no removal.
+    em2 = EnvironmentMap(H, W)
+    _one(em2, (1.0, 0, 0), device=(0.5, 0.5, 0.0))
+    assert _one(em2, 3.0 * d, device=0.5 * d + 0.05 * side).taken == 0
+    # Device beyond the stored surface (1.5 m along the ray): a backface, no removal.
+    em3 = EnvironmentMap(H, W)
+    _one(em3, (1.0, 0, 0), device=(0.5, 0.5, 0.0))
+    assert _one(em3, 3.0 * d, device=1.5 * d + 0.01 * side).taken == 0
+
+
+def test_non_finite_samples_are_skipped():
+    em = EnvironmentMap(H, W)
+    pts = np.array([[np.nan, 0, 0], [1.0, np.inf, 0], [0.0, 0.0, 0.0], [1.0, 0, 0]])
+    cols = np.array([[1, 1, 1], [1, 1, 1], [1, 1, 1], [np.nan, 0, 0]], np.float32)
+    stats = update(em, pts, cols, np.zeros(3), FOCAL, POINT)
+    assert stats.taken == 0 and not em.valid.any() and np.isfinite(em.radiance).all()
+
+
+def test_poles_and_seam_samples_land_in_range():
+    em = EnvironmentMap(H, W)
+    pts = np.array([[0, 0, 1.0], [0, 0, -1.0], [-1.0, 1e-15, 0], [-1.0, -1e-15, 0]])
+    update(em, pts, np.ones((4, 3), np.float32), np.zeros(3), FOCAL, UpdateConfig(splat=True))
+    assert em.valid[0].any() and em.valid[-1].any() and em.valid[:, 0].any() and em.valid[:, -1].any()
+
+
+@pytest.mark.parametrize("scale", [1.0, 1.25])
+def test_splatting_closes_the_sieve_on_a_far_wall(scale):
+    # A ToF-like 224×172 grid of samples on the wall x = 2.5 m, seen from 0.4 m behind the origin.
+    em_point, em_splat = EnvironmentMap(1000, 2000), EnvironmentMap(1000, 2000)
+    u, v = np.meshgrid(np.linspace(-1.6, 1.6, 224), np.linspace(-1.2, 1.2, 172))
+    device = np.array([-0.4, 0.0, 0.0])
+    pts = np.stack([np.full(u.size, 2.5), u.ravel(), v.ravel()], -1)
+    cols = np.ones((len(pts), 3), np.float32)
+    update(em_point, pts, cols, device, FOCAL, POINT)
+    update(em_splat, pts, cols, device, FOCAL, UpdateConfig(splat=True, splat_scale=scale))
+    # EM pixels whose ray from the origin meets the sampled rectangle, 2 cm inside its border.
+    d = equirect_directions(1000, 2000).astype(float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = 2.5 / d[..., 0]
+        y, z = t * d[..., 1], t * d[..., 2]
+    inside = (d[..., 0] > 0) & (np.abs(y) < 1.58) & (np.abs(z) < 1.18)
+    assert em_point.valid[inside].mean() < 0.9  # one pixel per sample leaves a sieve
+    assert em_splat.valid[inside].all()
+    # Splats stay on the wall: nothing beyond 4 cm outside the rectangle.
+    outside = (d[..., 0] <= 0) | (np.abs(y) > 1.64) | (np.abs(z) > 1.24)
+    assert not em_splat.valid[outside].any()
+
+
+def test_pairs_need_data_within_one_centimetre():
+    em = EnvironmentMap(H, W)
+    _one(em, (2.0, 0, 0), colour=(0.2, 0.4, 0.6))
+    pts = np.array([[2.005, 0, 0], [2.02, 0, 0], [0, 2.0, 0]])
+    src, dst = collect_pairs(em, pts, np.array([[1, 1, 1], [2, 2, 2], [3, 3, 3]], np.float32))
+    np.testing.assert_allclose(src, [[1, 1, 1]])
+    np.testing.assert_allclose(dst, [[0.2, 0.4, 0.6]])
+    src, dst = collect_pairs(EnvironmentMap(H, W), pts, np.ones((3, 3), np.float32))
+    assert src.shape == (0, 3) and dst.shape == (0, 3)
+
+
+@pytest.fixture(scope="module")
+def room():
+    return SceneRaycaster(scene_from_dict(box_room(radiance=(0.5, 0.4, 0.3), extra=[
+        {"name": "post", "shape": "box", "centre": [0.8, 0.3, 0.0], "size": [0.2, 0.2, 3.9], "radiance": [0.9, 0.1, 0.1]},
+        {"name": "poster", "shape": "quad", "corner": [-1.99, -1.0, -1.0], "u": [0, 2.0, 0], "v": [0, 0, 2.0],
+         "radiance": {"texture": "checker", "colours": [[0.9, 0.9, 0.9], [0.1, 0.2, 0.3]], "cells": [4, 4]}},
+    ])))
+
+
+def _gt_map(room, origin, h=250, w=500):
+    gt = render_envmap(room, origin, h, w, 0.0)
+    return EnvironmentMap.from_arrays(gt.radiance, gt.distance_m, gt.valid, origin)
+
+
+def test_zero_translation_is_the_identity(room):
+    em = _gt_map(room, np.zeros(3))
+    out = translate(em, np.zeros(3))
+    np.testing.assert_array_equal(out.valid, em.valid)
+    np.testing.assert_allclose(out.depth_m, em.depth_m, rtol=1e-5)
+    np.testing.assert_array_equal(out.radiance, em.radiance)
+
+
+def test_depth_translation_matches_ground_truth_at_the_new_origin(room):
+    origin, offset = np.array([-0.3, 0.0, 0.0]), np.array([0.25, -0.15, 0.1])
+    moved = translate(_gt_map(room, origin), offset)
+    truth = _gt_map(room, origin + offset)
+    both = moved.valid & truth.valid
+    assert both.mean() > 0.95
+    rel = np.abs(moved.depth_m[both] - truth.depth_m[both]) / truth.depth_m[both]
+    assert np.median(rel) < 0.01
+    assert np.mean(np.all(np.abs(moved.radiance[both] - truth.radiance[both]) < 1e-6, axis=-1)) > 0.95
+    # The baseline assumes a sphere and gets the parallax of the near post wrong.
+    gardner = translate(_gt_map(room, origin), offset, method="gardner", radius_m=2.0)
+    ok_depth = np.mean(np.all(np.abs(moved.radiance[both] - truth.radiance[both]) < 1e-6, axis=-1))
+    ok_gardner = np.mean(np.all(np.abs(gardner.radiance[both] - truth.radiance[both]) < 1e-6, axis=-1))
+    assert ok_depth > ok_gardner
+
+
+def test_gardner_is_exact_for_a_spherical_world():
+    h, w = 64, 128
+    dirs = equirect_directions(h, w)
+    radiance = np.repeat(((dirs + 1) / 2)[..., :1], 3, axis=-1).astype(np.float32)  # varies with x
+    em = EnvironmentMap.from_arrays(radiance, np.full((h, w), 2.0, np.float32), np.ones((h, w), bool), np.zeros(3))
+    g = translate(em, np.array([0.3, 0.0, 0.0]), method="gardner", radius_m=2.0)
+    d = translate(em, np.array([0.3, 0.0, 0.0]), method="depth")
+    both = g.valid & d.valid
+    assert both.mean() > 0.95
+    np.testing.assert_allclose(g.depth_m[both], d.depth_m[both], rtol=2e-2)
+    assert np.median(np.abs(g.radiance[both] - d.radiance[both])) < 0.02
+
+
+def test_translate_errors():
+    em = EnvironmentMap(H, W)
+    with pytest.raises(UnknownMethodError):
+        translate(em, np.zeros(3), method="warp")
+    with pytest.raises(InvalidInputError):
+        translate(em, np.array([3.0, 0, 0]), method="gardner", radius_m=2.0)
+    with pytest.raises(InvalidInputError):
+        translate(em, np.array([np.nan, 0, 0]))
