@@ -67,9 +67,12 @@ def run_orbit(args, w, h) -> list[str]:
     origin = sim.scene.virtual_object_position
     base = CaptureConfig(height=args.em_height, width=2 * args.em_height)
     captures = {
-        "correction on (paper), footprint splat": EnvironmentCapture(origin, base),
-        "correction off, footprint splat": EnvironmentCapture(origin, replace(base, colour_correction=False)),
+        "default: correction on (ridge), splat 1.0, plane-consistent fills": EnvironmentCapture(origin, base),
+        "correction off": EnvironmentCapture(origin, replace(base, colour_correction=False)),
         "correction on, one pixel per sample": EnvironmentCapture(origin, replace(base, update=UpdateConfig(splat=False))),
+        "correction on, splat scale 1.25": EnvironmentCapture(origin, replace(base, update=UpdateConfig(splat_scale=1.25))),
+        "correction on, all filled pixels projected (paper)": EnvironmentCapture(origin, replace(base, filled_pixels="all")),
+        "correction on, plain least-squares matrix (paper)": EnvironmentCapture(origin, replace(base, ccm_method="least_squares")),
     }
     outcomes = {k: collections.Counter() for k in captures}
     t_end = 0.0

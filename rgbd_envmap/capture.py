@@ -10,7 +10,14 @@ matrix (current camera colours → reference colours). Per ingested depth packet
    ill-conditioned fit) → the previous accepted matrix stays in force for correcting colours and the
    frame is **not** projected; the step records why.
 3. An accepted frame is corrected with its matrix and projected with the update rules
-   (:func:`rgbd_envmap.envmap.update`), hole-filled pixels included.
+   (:func:`rgbd_envmap.envmap.update`): every measured pixel, and the hole-filled pixels chosen by
+   ``filled_pixels``. The paper projects them all (``"all"``). Eq. (1) averages sources on both sides
+   of a depth edge, so a hole at an edge (the ToF marks mixed pixels there) gets a depth in free space
+   between foreground and background; seen from the origin such a point lands on an arc across the
+   background and, being closer, wins it. ``"plane_consistent"`` (default) projects a filled pixel
+   only when the filled depth passes the noise-model plane test of
+   :func:`rgbd_envmap.depth.mark_reliable` (exposure rule off: the window and screen must go in);
+   ``"none"`` projects measurements only.
 
 With ``colour_correction=False`` every frame is projected uncorrected (the paper's Fig. 4 left);
 ``freeze=True`` keeps the map as it is (a static scene already captured) and only tracks the matrix.
@@ -22,11 +29,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rgbd_envmap.checks import check_method
 from rgbd_envmap.colour import CCMResult, apply_ccm, estimate_ccm
+from rgbd_envmap.depth import mark_reliable
 from rgbd_envmap.envmap import EnvironmentMap, UpdateConfig, UpdateStats, collect_pairs, frame_points, update
 from rgbd_envmap.types import RGBDFrame
 
-__all__ = ["CaptureConfig", "CaptureStep", "EnvironmentCapture"]
+__all__ = ["CaptureConfig", "CaptureStep", "EnvironmentCapture", "FILLED_PIXEL_MODES"]
+
+FILLED_PIXEL_MODES = ("plane_consistent", "all", "none")
 
 
 @dataclass(frozen=True)
@@ -44,7 +55,12 @@ class CaptureConfig:
     max_mse: float = 5e-2
     min_pairs: int = 500
     update: UpdateConfig = field(default_factory=UpdateConfig)
+    #: which hole-filled pixels go into the map: "plane_consistent", "all" (paper), "none".
+    filled_pixels: str = "plane_consistent"
     freeze: bool = False
+
+    def __post_init__(self) -> None:
+        check_method(self.filled_pixels, FILLED_PIXEL_MODES, "filled_pixels")
 
 
 @dataclass(frozen=True)
@@ -90,10 +106,10 @@ class EnvironmentCapture:
             if not filled.known.any():
                 return CaptureStep(ts, False, None, False, "no known pixels for a reference frame", 0, self.matrix.copy(), None)
             self.has_reference = True
-            stats = None if cfg.freeze else self._project(filled, np.eye(3))
+            stats = None if cfg.freeze else self._project(raw, filled, np.eye(3))
             return CaptureStep(ts, True, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
         if not cfg.colour_correction:
-            stats = None if cfg.freeze else self._project(filled, np.eye(3))
+            stats = None if cfg.freeze else self._project(raw, filled, np.eye(3))
             return CaptureStep(ts, False, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
         src, dst = collect_pairs(
             self.em, frame_points(raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam), raw.rgb[reliable],
@@ -105,11 +121,23 @@ class EnvironmentCapture:
         self.matrix = np.array(ccm.matrix, dtype=np.float64)
         if cfg.freeze:
             return CaptureStep(ts, False, ccm, False, "frozen", len(src), self.matrix.copy(), None)
-        stats = self._project(filled, self.matrix)
+        stats = self._project(raw, filled, self.matrix)
         return CaptureStep(ts, False, ccm, True, "", len(src), self.matrix.copy(), stats)
 
-    def _project(self, frame: RGBDFrame, matrix: np.ndarray) -> UpdateStats:
-        pts = frame_points(frame.depth_m, frame.known, frame.intrinsics, frame.T_world_from_cam)
-        colours = apply_ccm(frame.rgb[frame.known], matrix)
+    def projected_mask(self, raw: RGBDFrame, filled: RGBDFrame) -> np.ndarray:
+        """(H, W) bool: the pixels of ``filled`` that go into the map (see ``filled_pixels``)."""
+        mode = self.config.filled_pixels
+        if mode == "all":
+            return filled.known
+        if mode == "none":
+            return raw.known & filled.known
+        # Exposure rule off (thresholds no colour can meet): only the plane test decides.
+        consistent = mark_reliable(filled.rgb, filled.depth_m, filled.known, dark=-1.0, bright=1e30)
+        return filled.known & (raw.known | consistent)
+
+    def _project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray) -> UpdateStats:
+        mask = self.projected_mask(raw, frame)
+        pts = frame_points(frame.depth_m, mask, frame.intrinsics, frame.T_world_from_cam)
+        colours = apply_ccm(frame.rgb[mask], matrix)
         focal = 0.5 * (frame.intrinsics.fx + frame.intrinsics.fy)
         return update(self.em, pts, colours, frame.T_world_from_cam.translation, focal, self.config.update)

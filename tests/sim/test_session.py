@@ -1,7 +1,4 @@
-import dataclasses
-
 import numpy as np
-import pytest
 
 from rgbd_envmap.types import ColourPacket, DepthPacket
 from sim.colour_camera import ColourCameraConfig
@@ -53,7 +50,6 @@ def test_tracking_noise_perturbs_reported_not_true_poses(office):
 def test_groundtruth_arrays_describe_the_packet(office):
     sp = next(iter(_sim(office).run(0.1)))
     gt = sp.groundtruth
-    h, w = sp.packet.points_m.shape[0], 0
     assert gt["pixel_index"].shape == (len(sp.packet.points_m),)
     assert gt["true_depth_m"].shape == (172, 224)
     z_true = gt["true_depth_m"].reshape(-1)[gt["pixel_index"]]
