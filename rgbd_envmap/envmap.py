@@ -491,7 +491,9 @@ def _splat_warped(planes, valid, pv, pu, pd, hv, hu, row_sc, max_splat,
                 continue
             v, u = pv[r, c], pu[r, c]
             row = min(int(v), height - 1)
-            if hv[r, c] == 0.5 and hu[r, c] == 0.5:  # the common case: exactly the pixel it lands in
+            # The common case, one pixel, written without the span loops: 23 ms instead of 36 ms for
+            # 2000×1000 (the loops below reduce to the same single write).
+            if hv[r, c] == 0.5 and hu[r, c] == 0.5:
                 col = int(u)
                 col = col - width if col >= width else col
                 if nd < zbuf[row, col]:
