@@ -250,3 +250,31 @@ def test_translate_errors():
         translate(em, np.array([3.0, 0, 0]), method="gardner", radius_m=2.0)
     with pytest.raises(InvalidInputError):
         translate(em, np.array([np.nan, 0, 0]))
+
+
+def test_branchless_atan2_matches_libm_in_every_quadrant():
+    import math
+
+    from rgbd_envmap.envmap import _ATAN_POLY, _atan2_branchless
+
+    rng = np.random.default_rng(3)
+    pts = np.concatenate([rng.normal(size=(20000, 2)), [[0, 1], [0, -1], [1, 0], [-1, 0], [-1, 1e-300], [1e-300, 1e-300]]])
+    err = max(abs(_atan2_branchless(y, x) - math.atan2(y, x)) for y, x in pts if not (x < 0 and y == 0))
+    assert err < 2e-8
+    # The written-out polynomial is the tuple's: atan(1) from the tuple equals the function's.
+    assert abs(sum(_ATAN_POLY) - _atan2_branchless(1.0, 1.0)) < 1e-15
+
+
+def test_frame_points_match_unprojection_and_the_pose():
+    from rgbd_envmap.envmap import frame_points
+    from rgbd_envmap.geometry import look_at, unproject_pixels
+    from rgbd_envmap.types import Distortion, Intrinsics
+
+    intr = Intrinsics(32, 24, 30.0, 31.0, 15.5, 11.5, Distortion.radial(-0.05, 0.01, 0.0))
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(0.5, 3.0, intr.shape).astype(np.float32)
+    mask = rng.random(intr.shape) > 0.3
+    T = look_at([0.3, -0.2, 1.1], [2.0, 1.0, 0.5])
+    rows, cols = np.nonzero(mask)
+    cam = unproject_pixels(np.stack([cols, rows], -1).astype(float), depth[mask].astype(float), intr)
+    np.testing.assert_allclose(frame_points(depth, mask, intr, T), T.apply(cam), atol=1e-9)
