@@ -67,11 +67,14 @@ def run_orbit(args, w, h) -> list[str]:
     origin = sim.scene.virtual_object_position
     base = CaptureConfig(height=args.em_height, width=2 * args.em_height)
     captures = {
-        "default: correction on (ridge), splat 1.0, plane-consistent fills": EnvironmentCapture(origin, base),
+        "default: correction (ridge), splat 1.0, edge margin 2 px": EnvironmentCapture(origin, base),
         "correction off": EnvironmentCapture(origin, replace(base, colour_correction=False)),
+        "edge samples may take over (paper's rules)": EnvironmentCapture(origin, replace(base, edge_margin_px=None)),
+        "edge margin 1 px": EnvironmentCapture(origin, replace(base, edge_margin_px=1)),
+        "edge margin 3 px": EnvironmentCapture(origin, replace(base, edge_margin_px=3)),
         "correction on, one pixel per sample": EnvironmentCapture(origin, replace(base, update=UpdateConfig(splat=False))),
         "correction on, splat scale 1.25": EnvironmentCapture(origin, replace(base, update=UpdateConfig(splat_scale=1.25))),
-        "correction on, all filled pixels projected (paper)": EnvironmentCapture(origin, replace(base, filled_pixels="all")),
+        "correction on, plane-consistent filled pixels only": EnvironmentCapture(origin, replace(base, filled_pixels="plane_consistent")),
         "correction on, plain least-squares matrix (paper)": EnvironmentCapture(origin, replace(base, ccm_method="least_squares")),
     }
     outcomes = {k: collections.Counter() for k in captures}

@@ -207,7 +207,7 @@ def _span(x, half, limit):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _update_kernel(
-    points, colours, pv, pu, pr, origin, device, height, width, focal_px, splat, splat_scale, max_splat,
+    points, colours, fill_only, pv, pu, pr, origin, device, height, width, focal_px, splat, splat_scale, max_splat,
     planes, depth, valid, stamp, frame, trusted_r, removal_r, zbuf, winner, touched, row_sc, col_sc,
 ):  # pragma: no cover - compiled
     n = points.shape[0]
@@ -265,7 +265,7 @@ def _update_kernel(
         if rule_empty(valid[rr, cc]):
             take = True
             counts[1] += 1
-        elif rule_closer(r, depth[rr, cc]):
+        elif rule_closer(r, depth[rr, cc]) and not fill_only[i]:
             take = True
             counts[2] += 1
         elif trusted:
@@ -309,11 +309,14 @@ def update(
     device_position: np.ndarray,
     focal_px: float,
     config: UpdateConfig = UpdateConfig(),
+    fill_only: np.ndarray | None = None,
 ) -> UpdateStats:
     """Project (N, 3) world points with (N, 3) reference-space linear colours into ``em`` in place.
 
     ``device_position`` (3,) is the sensor's world position at capture; ``focal_px`` its focal length
-    in pixels (sets the footprint). Returns what the update did.
+    in pixels (sets the footprint). ``fill_only`` (N,) bool marks samples the "closer" rule does not
+    apply to (they still fill empty pixels and obey the trusted-sphere and removal rules; see
+    :class:`rgbd_envmap.capture.CaptureConfig.edge_margin_px`). Returns what the update did.
     """
     pts = check_array(points_world, "points_world", shape=("N", 3), dtype="float").astype(np.float64, copy=False)
     col = check_array(colours, "colours", shape=(pts.shape[0], 3), dtype="float").astype(np.float32, copy=False)
@@ -325,9 +328,10 @@ def update(
         em._frame = 1
     zbuf, winner, touched = em._update_scratch()
     pts = np.ascontiguousarray(pts)
+    flags = np.zeros(len(pts), bool) if fill_only is None else check_array(fill_only, "fill_only", shape=(len(pts),), dtype="bool")
     pv, pu, pr = _equirect_coords(pts, em.origin, em.height, em.width)
     n_touched, counts = _update_kernel(
-        pts, np.ascontiguousarray(col), pv, pu, pr, em.origin, dev, em.height, em.width,
+        pts, np.ascontiguousarray(col), np.ascontiguousarray(flags), pv, pu, pr, em.origin, dev, em.height, em.width,
         float(focal_px), bool(config.splat), float(config.splat_scale), int(config.max_splat_px),
         em.radiance_planes, em.depth_m, em.valid, em._stamp, em._frame,
         float(config.trusted_radius_m), float(config.removal_radius_m), zbuf, winner, touched,

@@ -278,3 +278,23 @@ def test_frame_points_match_unprojection_and_the_pose():
     rows, cols = np.nonzero(mask)
     cam = unproject_pixels(np.stack([cols, rows], -1).astype(float), depth[mask].astype(float), intr)
     np.testing.assert_allclose(frame_points(depth, mask, intr, T), T.apply(cam), atol=1e-9)
+
+
+def test_fill_only_samples_do_not_win_by_the_closer_rule():
+    em = EnvironmentMap(H, W)
+    _one(em, (3.0, 0, 0), colour=(1, 0, 0), device=(0.5, 0.5, 0.0))
+    r, c = _pixel((3.0, 0, 0))
+    pts = np.array([[1.0, 0, 0], [0, 2.0, 0]])  # closer on the stored pixel; a new, empty pixel
+    stats = update(em, pts, np.array([[0, 1, 0], [0, 0, 1]], np.float32), np.array([0.5, 0.5, 0.0]), FOCAL, POINT,
+                   fill_only=np.array([True, True]))
+    assert stats.taken == 1 and stats.taken_empty == 1
+    np.testing.assert_allclose(em.radiance[r, c], [1, 0, 0])
+    assert em.valid[_pixel((0, 2.0, 0))]
+
+
+def test_fill_only_samples_still_obey_the_trusted_sphere():
+    em = EnvironmentMap(H, W)
+    _one(em, (3.0, 0, 0), colour=(1, 0, 0), device=(0.5, 0.5, 0.0))
+    stats = update(em, np.array([[1.0, 0, 0]]), np.array([[0, 1, 0]], np.float32), np.array([0.05, 0.0, 0.0]),
+                   FOCAL, POINT, fill_only=np.array([True]))
+    assert stats.taken_trusted == 1
