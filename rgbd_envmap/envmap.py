@@ -90,19 +90,28 @@ class EnvironmentMap:
         self.radiance_planes = np.zeros((3, self.height, self.width), np.float32)
         self.depth_m = np.zeros((self.height, self.width), np.float32)
         self.valid = np.zeros((self.height, self.width), bool)
-        # Scratch state of the per-frame z-buffer: a pixel's entry is current when its stamp equals
-        # the frame counter, so nothing is cleared between frames.
-        self._stamp = np.zeros((self.height, self.width), np.int32)
         self._frame = 0
-        self._scratch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._scratch: tuple[np.ndarray, ...] | None = None
+        self._warp_scratch: tuple[np.ndarray, ...] | None = None
 
-    def _update_scratch(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per-frame z-buffer, winning sample and touched-pixel list of :func:`update`, allocated on
-        the first update only (maps made by ``translate`` or ``copy`` for viewing never need them)."""
+    def _update_scratch(self) -> tuple[np.ndarray, ...]:
+        """Per-frame stamp, z-buffer, winning sample and touched-pixel list of :func:`update`,
+        allocated on the first update only (maps made by ``translate`` or ``copy`` for viewing never
+        need them). A z-buffer entry is current when its stamp equals the frame counter, so nothing
+        is cleared between frames."""
         if self._scratch is None:
             shape = (self.height, self.width)
-            self._scratch = (np.zeros(shape, np.float32), np.zeros(shape, np.int32), np.zeros(self.height * self.width, np.int64))
+            self._scratch = (np.zeros(shape, np.int32), np.zeros(shape, np.float32), np.zeros(shape, np.int32),
+                             np.zeros(self.height * self.width, np.int64))
         return self._scratch
+
+    def _translate_scratch(self) -> tuple[np.ndarray, ...]:
+        """Five (H, W) float32 buffers for :func:`translate` from this map, kept for the next call:
+        a map is typically viewed from a moving origin many times, and fresh 8 MB buffers cost page
+        faults on every call."""
+        if self._warp_scratch is None:
+            self._warp_scratch = tuple(np.empty((self.height, self.width), np.float32) for _ in range(5))
+        return self._warp_scratch
 
     @property
     def radiance(self) -> np.ndarray:
@@ -322,18 +331,18 @@ def update(
     col = check_array(colours, "colours", shape=(pts.shape[0], 3), dtype="float").astype(np.float32, copy=False)
     dev = check_array(device_position, "device_position", shape=(3,), dtype="float", finite=True).astype(np.float64)
     # Non-finite points or colours are skipped inside the kernel (a numpy pre-pass cost 1.5 ms).
+    stamp, zbuf, winner, touched = em._update_scratch()
     em._frame += 1
     if em._frame == np.iinfo(np.int32).max:  # stamps would wrap: start them over
-        em._stamp[:] = 0
+        stamp[:] = 0
         em._frame = 1
-    zbuf, winner, touched = em._update_scratch()
     pts = np.ascontiguousarray(pts)
     flags = np.zeros(len(pts), bool) if fill_only is None else check_array(fill_only, "fill_only", shape=(len(pts),), dtype="bool")
     pv, pu, pr = _equirect_coords(pts, em.origin, em.height, em.width)
     n_touched, counts = _update_kernel(
         pts, np.ascontiguousarray(col), np.ascontiguousarray(flags), pv, pu, pr, em.origin, dev, em.height, em.width,
         float(focal_px), bool(config.splat), float(config.splat_scale), int(config.max_splat_px),
-        em.radiance_planes, em.depth_m, em.valid, em._stamp, em._frame,
+        em.radiance_planes, em.depth_m, em.valid, stamp, em._frame,
         float(config.trusted_radius_m), float(config.removal_radius_m), zbuf, winner, touched,
         *_trig_tables(em.height, em.width),
     )
@@ -564,13 +573,12 @@ def translate(em: EnvironmentMap, offset: np.ndarray, method: str = "depth", *, 
     out = EnvironmentMap(em.height, em.width, new_origin)
     if method == "depth":
         shape = (em.height, em.width)
-        pv, pu, pd = np.empty(shape, np.float32), np.empty(shape, np.float32), np.empty(shape, np.float32)
+        pv, pu, pd, hv, hu = em._translate_scratch()
         row_sc, col_sc = _trig_tables(em.height, em.width)
         o = (em.origin - new_origin).astype(np.float32)
         # Contiguous sin / cos columns: strided reads from the (W, 2) tables kept the loop scalar.
         _reproject(em.depth_m, np.ascontiguousarray(row_sc[:, 0]), np.ascontiguousarray(row_sc[:, 1]),
                    np.ascontiguousarray(col_sc[:, 0]), np.ascontiguousarray(col_sc[:, 1]), o[0], o[1], o[2], pv, pu, pd)
-        hv, hu = np.empty(shape, np.float32), np.empty(shape, np.float32)
         _extents(em.depth_m, em.valid, pv, pu, np.float32(max_rel_jump), hv, hu)
         zbuf = np.full(shape, np.inf, np.float32)
         _splat_warped(em.radiance_planes, em.valid, pv, pu, pd, hv, hu, row_sc, int(max_splat_px),
