@@ -16,7 +16,8 @@ matrix (current camera colours → reference colours). Per ingested depth packet
    between foreground and background; seen from the origin such a point lands on an arc across the
    background and, being closer, wins it. ``"plane_consistent"`` projects a filled pixel
    only when the filled depth passes the noise-model plane test of
-   :func:`rgbd_envmap.depth.mark_reliable` (exposure rule off: the window and screen must go in);
+   :func:`rgbd_envmap.depth.reliability.discontinuity_test` (depth only, no exposure rule: the window
+   and screen must go in);
    ``"none"`` projects measurements only.
 
 With ``colour_correction=False`` every frame is projected uncorrected (the paper's Fig. 4 left);
@@ -32,7 +33,7 @@ import numpy as np
 
 from rgbd_envmap.checks import check_method
 from rgbd_envmap.colour import CCMResult, apply_ccm, estimate_ccm
-from rgbd_envmap.depth import mark_reliable
+from rgbd_envmap.depth.reliability import discontinuity_test
 from rgbd_envmap.envmap import EnvironmentMap, UpdateConfig, UpdateStats, collect_pairs, frame_points, update
 from rgbd_envmap.types import RGBDFrame
 
@@ -140,8 +141,7 @@ class EnvironmentCapture:
             return filled.known
         if mode == "none":
             return raw.known & filled.known
-        # Exposure rule off (thresholds no colour can meet): only the plane test decides.
-        consistent = mark_reliable(filled.rgb, filled.depth_m, filled.known, dark=-1.0, bright=1e30)
+        consistent = discontinuity_test(filled.depth_m, filled.known).passed
         return filled.known & (raw.known | consistent)
 
     def _project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray) -> UpdateStats:
@@ -151,7 +151,7 @@ class EnvironmentCapture:
         focal = 0.5 * (frame.intrinsics.fx + frame.intrinsics.fy)
         fill_only = None
         if self.config.edge_margin_px is not None:
-            plane = mark_reliable(frame.rgb, frame.depth_m, frame.known, dark=-1.0, bright=1e30)
+            plane = discontinuity_test(frame.depth_m, frame.known).passed
             edge = (frame.known & ~plane).astype(np.uint8)
             k = 2 * int(self.config.edge_margin_px) + 1
             fill_only = cv2.dilate(edge, np.ones((k, k), np.uint8)).astype(bool)[mask]

@@ -12,7 +12,7 @@ next frame, so a change in the scene shows up first as an over/under-exposed fra
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numba
@@ -68,10 +68,14 @@ def _unit_rays_cached(intrinsics: Intrinsics) -> np.ndarray:
     return (rays / np.linalg.norm(rays, axis=1, keepdims=True)).astype(np.float32)
 
 
+#: A mild phone-lens Brown distortion (k1, k2, p1, p2, k3).
+DEFAULT_COLOUR_DISTORTION = Distortion(0.06, -0.12, 0.0006, -0.0004, 0.04)
+
+
 def colour_intrinsics(width: int, height: int, hfov_deg: float = 78.0, distortion: Distortion | None = None) -> Intrinsics:
     """Intrinsics of the colour camera at a given resolution: square pixels, centred principal point."""
     fx = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
-    dist = distortion if distortion is not None else Distortion(0.06, -0.12, 0.0006, -0.0004, 0.04)
+    dist = distortion if distortion is not None else DEFAULT_COLOUR_DISTORTION
     return Intrinsics(width, height, fx, fx, (width - 1) / 2.0, (height - 1) / 2.0, dist)
 
 
@@ -83,7 +87,7 @@ class ColourCameraConfig:
     height: int = 1080
     #: 78° × 49° at 16:9, a typical phone main camera; it covers the ToF camera's 58.5° × 46.5°.
     hfov_deg: float = 78.0
-    distortion: Distortion = field(default_factory=lambda: Distortion(0.06, -0.12, 0.0006, -0.0004, 0.04))
+    distortion: Distortion = DEFAULT_COLOUR_DISTORTION
     rate_hz: float = 30.0
     #: photon shot noise variance per unit signal, and read-noise σ (linear units of full scale).
     shot_noise: float = 2e-4
