@@ -21,6 +21,42 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _xyz(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in metres, got {text!r}") from None
+
+
+def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("pipeline settings (defaults: the paper's; see config.yaml of any run)")
+    g.add_argument("--config", type=Path, default=None, metavar="YAML", help="a (partial) PipelineConfig YAML file")
+    g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one setting, e.g. --set capture.ccm_method=least_squares --set shading.bands=3 (repeatable)")
+    g.add_argument("--em-size", type=_size, default=None, metavar="WxH", help="environment map size, e.g. 1000x500")
+    g.add_argument("--no-render", action="store_true", help="capture only: no virtual object, no composites")
+    o = p.add_argument_group("outputs")
+    o.add_argument("--composite-every", type=int, default=30, metavar="N", help="save every N-th composited frame as PNG")
+    o.add_argument("--no-video", action="store_true", help="do not write composites.mp4")
+    o.add_argument("--rerun", type=Path, default=None, metavar="FILE.rrd",
+                   help="also record frames, the map and poses for the rerun viewer (needs rerun-sdk)")
+    o.add_argument("--cache-dir", type=Path, default=None, metavar="DIR",
+                   help="where the object's PRT transfer is cached (default $RGBD_ENVMAP_CACHE or ~/.cache/rgbd-envmap)")
+
+
+def _pipeline_config(args: argparse.Namespace):
+    from rgbd_envmap.config import apply_overrides, load_yaml
+    from rgbd_envmap.pipeline import PipelineConfig
+
+    cfg = load_yaml(PipelineConfig, args.config) if args.config is not None else PipelineConfig()
+    extra = []
+    if args.em_size is not None:
+        extra += [f"capture.width={args.em_size[0]}", f"capture.height={args.em_size[1]}"]
+    if args.no_render:
+        extra.append("render.enabled=false")
+    return apply_overrides(cfg, extra + list(args.overrides))
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rgbd-envmap",
@@ -30,11 +66,12 @@ def build_parser() -> argparse.ArgumentParser:
     fmt = argparse.ArgumentDefaultsHelpFormatter
     sim = sub.add_parser(
         "simulate", formatter_class=fmt,
-        help="record a simulated capture session (log + ground truth + preview)",
+        help="simulate a capture session and run the pipeline on it live",
         description="Simulate a Tango-like device (ToF depth at 5 Hz, colour at 30 Hz with auto-exposure and "
-        "white balance) moving through a scene. Writes OUT/session/ (the log, with ground truth under "
-        "groundtruth/), OUT/preview/ (contact sheet, depth and confidence images, ground-truth "
-        "environment map) and OUT/simulation.json (counts and per-packet simulation times).",
+        "white balance) moving through a scene, and run the capture-and-relight pipeline on its packets as "
+        "they arrive. Writes into OUT: envmap.npz / envmap.png / envmap_depth.png, composites/ and "
+        "composites.mp4, timing.csv / timing.md / timing.png, accuracy.json, depth_frames.csv, config.yaml, "
+        "run.json; session/ (the log, with ground truth under groundtruth/), preview/ and simulation.json.",
     )
     sim.add_argument("--duration", type=float, required=True, metavar="SECONDS", help="simulated time to record, in seconds")
     sim.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
@@ -42,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--trajectory", default=None, metavar="NAME",
                      help="trajectory name under sequences/trajectories/ or a YAML path (default: the scene's)")
     sim.add_argument("--seed", type=int, default=0, metavar="N", help="random seed; equal seeds give identical sessions")
-    sim.add_argument("--colour-size", type=_size, default=(1920, 1080), metavar="WxH", help="colour camera resolution in pixels")
+    sim.add_argument("--colour-size", type=_size, default=(960, 540), metavar="WxH", help="colour camera resolution in pixels")
     sim.add_argument("--tracking-noise-m", type=float, default=0.0, metavar="METRES", help="σ of reported-position noise per packet")
     sim.add_argument("--tracking-noise-deg", type=float, default=0.0, metavar="DEGREES", help="σ of reported-rotation noise per packet")
     sim.add_argument("--no-auto-exposure", action="store_true", help="hold the exposure gain at 1")
@@ -51,6 +88,40 @@ def build_parser() -> argparse.ArgumentParser:
                      help="height of the ground-truth environment map preview (width = 2 × height)")
     sim.add_argument("--overwrite", action="store_true", help="replace an existing session in OUT")
     sim.add_argument("--quiet", action="store_true", help="no progress bar")
+    sim.add_argument("--record-only", action="store_true", help="record the session without running the pipeline")
+    _add_pipeline_args(sim)
+
+    rep = sub.add_parser(
+        "replay", formatter_class=fmt, help="run the pipeline on a recorded session log",
+        description="Replay a session log (as written by simulate) through the pipeline, with any settings. "
+        "Writes the same run folder as simulate (without session/ and preview/). Unreadable packets are "
+        "skipped and counted in run.json, or end the run with --strict.",
+    )
+    rep.add_argument("log", type=Path, metavar="LOG", help="session directory (the one holding calibration.json)")
+    rep.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    rep.add_argument("--origin", type=_xyz, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                     help="EM origin in world metres (default: the log's true-map origin, else 1 m in front of the first camera)")
+    rep.add_argument("--strict", action="store_true", help="stop at the first unreadable packet instead of skipping it")
+    rep.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_pipeline_args(rep)
+
+    rpt = sub.add_parser("report", formatter_class=fmt, help="regenerate the reports of a run folder",
+                         description="Rewrite timing.csv, timing.md and timing.png of RUN from its stage_times.csv, "
+                         "accuracy.json and run.json.")
+    rpt.add_argument("run", type=Path, metavar="RUN", help="a run folder written by simulate or replay")
+
+    sw = sub.add_parser(
+        "sweep", formatter_class=fmt, help="speed-vs-error grid over pipeline settings",
+        description="Replay one recorded log under a grid of settings (EM size, SH bands, hole filling, "
+        "correction method, translation method), in parallel over the cores, and write sweep.csv, "
+        "sweep.md (time and error side by side) and pareto.png.",
+    )
+    sw.add_argument("log", type=Path, metavar="LOG", help="session directory recorded by simulate")
+    sw.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    sw.add_argument("--jobs", type=int, default=None, metavar="N", help="parallel processes (default: the number of cores)")
+    sw.add_argument("--axes", nargs="+", default=None, metavar="AXIS",
+                    help="which axes to sweep (default all): em_size bands hole_filling ccm translation")
+    sw.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 
@@ -66,11 +137,36 @@ def main(argv: list[str] | None = None) -> int:
                 tracking_noise_m=args.tracking_noise_m, tracking_noise_deg=args.tracking_noise_deg,
                 auto_exposure=not args.no_auto_exposure, auto_white_balance=not args.no_auto_white_balance,
                 preview_envmap_height=args.preview_envmap_height, overwrite=args.overwrite, progress=not args.quiet,
+                pipeline=not args.record_only, config=_pipeline_config(args), composite_every=args.composite_every,
+                video=not args.no_video, rerun=args.rerun, cache_dir=args.cache_dir,
             ))
             print(
                 f"recorded {summary['depth_packets']} depth and {summary['colour_packets']} colour packets "
-                f"in {summary['wall_s']:.1f} s → {summary['session']}\npreview: {summary['preview']}"
+                f"in {summary['wall_s']:.1f} s → {summary['session']}"
             )
+            if summary["pipeline"]:
+                print(f"report: {args.out / 'timing.md'}\ncomposites: {args.out / 'composites.mp4'} and {args.out / 'composites'}/")
+        elif args.command == "replay":
+            from apps.replay import ReplayOptions, run_replay
+
+            summary = run_replay(ReplayOptions(
+                log=args.log, out=args.out, origin=tuple(args.origin) if args.origin else None, config=_pipeline_config(args),
+                composite_every=args.composite_every, video=not args.no_video, progress=not args.quiet, strict=args.strict,
+                rerun=args.rerun, cache_dir=args.cache_dir,
+            ))
+            skipped = summary.get("skipped") or {}
+            print(f"replayed {summary['depth_packets']} depth and {summary['colour_packets']} colour packets"
+                  + (f" (skipped unreadable: {skipped})" if skipped else "") + f" → {args.out / 'timing.md'}")
+        elif args.command == "report":
+            from apps.report import write_reports
+
+            write_reports(args.run)
+            print(f"wrote {args.run / 'timing.csv'}, {args.run / 'timing.md'}, {args.run / 'timing.png'}")
+        elif args.command == "sweep":
+            from apps.sweep import run_sweep
+
+            path = run_sweep(args.log, args.out, jobs=args.jobs, axes=args.axes, progress=not args.quiet)
+            print(f"wrote {path}")
     except RgbdEnvmapError as exc:
         print(f"rgbd-envmap: error: {exc}", file=sys.stderr)
         return 2

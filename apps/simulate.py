@@ -1,4 +1,13 @@
-"""``rgbd-envmap simulate``: record a simulated capture session with ground truth and a preview."""
+"""``rgbd-envmap simulate``: simulate a capture session, run the pipeline on it live, and record it.
+
+Writes the run folder of :mod:`apps.run` (map, composites, timing and accuracy reports, config) plus
+``session/`` (the log, replayable with ``rgbd-envmap replay``; ground truth under
+``session/groundtruth/``, including ``envmap.npz``, the true map at the session's end),
+``preview/`` (contact sheet, depth and confidence images, the true map) and ``simulation.json``.
+
+The pipeline is fed each packet exactly as the log stores it (:func:`rgbd_envmap.logs.as_logged`),
+so replaying the log with the same config reproduces ``envmap.npz`` bit for bit.
+"""
 
 from __future__ import annotations
 
@@ -11,9 +20,11 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from apps.run import RunOptions, run_pipeline
 from apps.preview import colour_thumbnail, contact_sheet, depth_confidence_images, depth_to_colourmap, tonemap
 from rgbd_envmap.errors import InvalidInputError
-from rgbd_envmap.logs import SessionWriter
+from rgbd_envmap.logs import SessionWriter, as_logged
+from rgbd_envmap.pipeline import Pipeline, PipelineConfig
 from sim.colour_camera import ColourCameraConfig
 from sim.device import TangoDeviceConfig
 from sim.groundtruth import render_envmap
@@ -33,8 +44,8 @@ class SimulateOptions:
     scene: str = "office"
     trajectory: str | None = None
     seed: int = 0
-    colour_width: int = 1920
-    colour_height: int = 1080
+    colour_width: int = 960
+    colour_height: int = 540
     tracking_noise_m: float = 0.0
     tracking_noise_deg: float = 0.0
     auto_exposure: bool = True
@@ -42,6 +53,13 @@ class SimulateOptions:
     preview_envmap_height: int = 500
     overwrite: bool = False
     progress: bool = True
+    #: run the pipeline live (False: record only).
+    pipeline: bool = True
+    config: PipelineConfig = PipelineConfig()
+    composite_every: int = 30
+    video: bool = True
+    rerun: Path | None = None
+    cache_dir: Path | None = None
 
 
 def _pick(n: int, k: int) -> set[int]:
@@ -71,22 +89,52 @@ def run_simulate(opts: SimulateOptions) -> dict:
     times: dict[str, list[float]] = {"depth": [], "colour": []}
     thumbs, depth_tiles = [], []
     counters = {"depth": 0, "colour": 0}
-    wall0 = time.perf_counter()
-    with SessionWriter(out / "session", sim.calibration, overwrite=opts.overwrite) as writer:
+    last_t = [0.0]
+    origin = np.asarray(scene.virtual_object_position, np.float64)
+
+    def recorded(writer: SessionWriter):
         stream = iter(sim.run(opts.duration_s))
-        for _ in tqdm(range(len(schedule)), desc="simulate", unit="pkt", disable=not opts.progress):
+        for _ in range(len(schedule)):
             t0 = time.perf_counter()
             sp = next(stream)
             kind = sp.packet.kind
             times[kind].append(time.perf_counter() - t0)
             writer.write(sp.packet, true_pose=sp.true_pose, groundtruth=sp.groundtruth)
+            last_t[0] = sp.t_s
             i = counters[kind]
             counters[kind] += 1
             if kind == "colour" and i in show_colour:
                 thumbs.append(colour_thumbnail(sp.packet))
             elif kind == "depth" and i in show_depth:
                 d, c = depth_confidence_images(sp.packet, sim.calibration.depth)
-                depth_tiles += [d, c]
+                depth_tiles.extend([d, c])
+            yield as_logged(sp.packet), sp.groundtruth
+
+    def groundtruth_envmap() -> dict:
+        em = opts.config.capture
+        gt = render_envmap(sim.raycaster, origin, em.height, em.width, last_t[0])
+        arrays = {"radiance": gt.radiance, "distance_m": gt.distance_m, "valid": gt.valid, "origin": gt.origin,
+                  "t_s": np.float64(last_t[0])}
+        (out / "session" / "groundtruth").mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(out / "session" / "groundtruth" / "envmap.npz", **arrays)
+        return arrays
+
+    wall0 = time.perf_counter()
+    with SessionWriter(out / "session", sim.calibration, overwrite=opts.overwrite) as writer:
+        if opts.pipeline:
+            pipe = Pipeline(opts.config, sim.calibration, origin, cache_dir=opts.cache_dir)
+            with pipe:
+                run_pipeline(
+                    pipe, recorded(writer), len(schedule),
+                    RunOptions(out, composite_every=opts.composite_every, video=opts.video, progress=opts.progress,
+                               rerun=opts.rerun),
+                    groundtruth_envmap=groundtruth_envmap,
+                    extra={"source": "simulate", "scene": scene.name},
+                )
+        else:
+            for _ in tqdm(recorded(writer), total=len(schedule), desc="simulate", unit="pkt", disable=not opts.progress):
+                pass
+            groundtruth_envmap()
     wall = time.perf_counter() - wall0
 
     cv2.imwrite(str(preview_dir / "contact_sheet.png"), cv2.cvtColor(contact_sheet(thumbs, 4), cv2.COLOR_RGB2BGR))
@@ -114,6 +162,7 @@ def run_simulate(opts: SimulateOptions) -> dict:
         "simulate_depth_packet": stats(times["depth"]),
         "simulate_colour_packet": stats(times["colour"]),
         "wall_s": wall,
+        "pipeline": opts.pipeline,
         "session": str(out / "session"),
         "preview": str(preview_dir),
     }

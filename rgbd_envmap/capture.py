@@ -26,6 +26,7 @@ With ``colour_correction=False`` every frame is projected uncorrected (the paper
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import cv2
@@ -35,11 +36,21 @@ from rgbd_envmap.checks import check_method
 from rgbd_envmap.colour import CCMResult, apply_ccm, estimate_ccm
 from rgbd_envmap.depth.reliability import discontinuity_test
 from rgbd_envmap.envmap import EnvironmentMap, UpdateConfig, UpdateStats, collect_pairs, frame_points, update
+from rgbd_envmap.timing import StageTimer
 from rgbd_envmap.types import RGBDFrame
 
 __all__ = ["CaptureConfig", "CaptureStep", "EnvironmentCapture", "FILLED_PIXEL_MODES"]
 
 FILLED_PIXEL_MODES = ("plane_consistent", "all", "none")
+
+
+class _NullTimer:
+    @contextmanager
+    def stage(self, name: str):
+        yield
+
+
+_NO_TIMER = _NullTimer()
 
 
 @dataclass(frozen=True)
@@ -107,31 +118,36 @@ class EnvironmentCapture:
         self.matrix = np.eye(3)
         self.has_reference = False
 
-    def process(self, raw: RGBDFrame, reliable: np.ndarray, filled: RGBDFrame) -> CaptureStep:
+    def process(self, raw: RGBDFrame, reliable: np.ndarray, filled: RGBDFrame, *, timer: StageTimer | None = None) -> CaptureStep:
         """Process one ingested frame: ``raw`` (before hole filling) with its ``reliable`` mask, and
-        ``filled`` (after hole filling), both in the current camera's colour space."""
+        ``filled`` (after hole filling), both in the current camera's colour space. ``timer`` records
+        the stages "Collect paired samples", "Compute colour correction matrix" (the fit and its MSE)
+        and "Project sample to EM*"."""
         cfg = self.config
+        t = timer or _NO_TIMER
         ts = raw.timestamp_ns
         if not self.has_reference:
             if not filled.known.any():
                 return CaptureStep(ts, False, None, False, "no known pixels for a reference frame", 0, self.matrix.copy(), None)
             self.has_reference = True
-            stats = None if cfg.freeze else self._project(raw, filled, np.eye(3))
+            stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t)
             return CaptureStep(ts, True, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
         if not cfg.colour_correction:
-            stats = None if cfg.freeze else self._project(raw, filled, np.eye(3))
+            stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t)
             return CaptureStep(ts, False, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
-        src, dst = collect_pairs(
-            self.em, frame_points(raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam), raw.rgb[reliable],
-            cfg.pair_max_depth_diff_m,
-        )
-        ccm = estimate_ccm(src, dst, method=cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs)
+        with t.stage("Collect paired samples"):
+            src, dst = collect_pairs(
+                self.em, frame_points(raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam), raw.rgb[reliable],
+                cfg.pair_max_depth_diff_m,
+            )
+        with t.stage("Compute colour correction matrix"):
+            ccm = estimate_ccm(src, dst, method=cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs)
         if not ccm.accepted:
             return CaptureStep(ts, False, ccm, False, ccm.reason, len(src), self.matrix.copy(), None)
         self.matrix = np.array(ccm.matrix, dtype=np.float64)
         if cfg.freeze:
             return CaptureStep(ts, False, ccm, False, "frozen", len(src), self.matrix.copy(), None)
-        stats = self._project(raw, filled, self.matrix)
+        stats = self._timed_project(raw, filled, self.matrix, t)
         return CaptureStep(ts, False, ccm, True, "", len(src), self.matrix.copy(), stats)
 
     def projected_mask(self, raw: RGBDFrame, filled: RGBDFrame) -> np.ndarray:
@@ -143,6 +159,10 @@ class EnvironmentCapture:
             return raw.known & filled.known
         consistent = discontinuity_test(filled.depth_m, filled.known).passed
         return filled.known & (raw.known | consistent)
+
+    def _timed_project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray, timer) -> UpdateStats:
+        with timer.stage("Project sample to EM*"):
+            return self._project(raw, frame, matrix)
 
     def _project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray) -> UpdateStats:
         mask = self.projected_mask(raw, frame)

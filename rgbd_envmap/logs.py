@@ -42,7 +42,7 @@ import numpy as np
 from rgbd_envmap.errors import InvalidInputError, LogFormatError, RgbdEnvmapError, ShapeError
 from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, RigidTransform
 
-__all__ = ["SessionWriter", "SessionLog", "format_timestamp", "parse_timestamp", "QUATERNION_NORM_TOL"]
+__all__ = ["SessionWriter", "SessionLog", "as_logged", "format_timestamp", "parse_timestamp", "QUATERNION_NORM_TOL"]
 
 FORMAT, VERSION = "rgbd-envmap-session", 1
 KINDS = ("depth", "colour")
@@ -113,6 +113,21 @@ def _read_poses(path: Path, kind: str) -> dict[int, RigidTransform]:
 def _pose_line(timestamp_ns: int, T: RigidTransform) -> str:
     values = np.concatenate([T.translation, T.quaternion_xyzw()])
     return format_timestamp(timestamp_ns) + " " + " ".join("%.17g" % x for x in values) + "\n"
+
+
+def _logged_pose(T: RigidTransform) -> RigidTransform:
+    """``T`` as :meth:`SessionLog.open` reads it back: translation and quaternion are written with 17
+    significant digits (exact for float64), and the rotation is rebuilt from the quaternion."""
+    return RigidTransform.from_quaternion(T.translation, T.quaternion_xyzw(), T.dst, T.src)
+
+
+def as_logged(packet: DepthPacket | ColourPacket) -> DepthPacket | ColourPacket:
+    """The packet exactly as a :class:`SessionLog` of it returns it (points, confidence and images are
+    stored losslessly; only the pose goes through the quaternion). Feeding a live pipeline with
+    these makes a replay of the recorded log reproduce its results bit for bit."""
+    if isinstance(packet, DepthPacket):
+        return DepthPacket(packet.timestamp_ns, packet.points_m, packet.confidence, _logged_pose(packet.T_world_from_depth))
+    return ColourPacket(packet.timestamp_ns, packet.nv21, _logged_pose(packet.T_world_from_colour))
 
 
 def _ply_bytes(points_m: np.ndarray, confidence: np.ndarray) -> bytes:
@@ -299,11 +314,19 @@ class SessionLog:
     def __len__(self) -> int:
         return sum(len(v) for v in self._entries.values())
 
-    def __iter__(self) -> Iterator[DepthPacket | ColourPacket]:
-        """All packets in timestamp order; depth before colour on equal timestamps."""
+    def entries(self) -> Iterator[tuple[str, int, int]]:
+        """(kind, index within its stream, timestamp_ns) of every packet in delivery order: timestamp
+        order, depth before colour on equal timestamps."""
         n_depth = len(self.depth_timestamps_ns)
-        for j in np.argsort(np.concatenate([self.depth_timestamps_ns, self.colour_timestamps_ns]), kind="stable"):
-            yield self.read_depth(int(j)) if j < n_depth else self.read_colour(int(j - n_depth))
+        stamps = np.concatenate([self.depth_timestamps_ns, self.colour_timestamps_ns])
+        for j in np.argsort(stamps, kind="stable"):
+            j = int(j)
+            yield ("depth", j, int(stamps[j])) if j < n_depth else ("colour", j - n_depth, int(stamps[j]))
+
+    def __iter__(self) -> Iterator[DepthPacket | ColourPacket]:
+        """All packets in delivery order (see :meth:`entries`)."""
+        for kind, i, _ in self.entries():
+            yield self.read_depth(i) if kind == "depth" else self.read_colour(i)
 
     def read_depth(self, i: int) -> DepthPacket:
         """The ``i``-th depth packet (points in metres, depth sensor frame)."""

@@ -1,0 +1,180 @@
+"""Running the pipeline over a packet stream and writing a run folder (shared by simulate and replay).
+
+A run folder holds:
+
+- ``envmap.npz`` (arrays ``radiance`` (H, W, 3) float32 linear, ``depth_m`` (H, W) float32 distance
+  from the origin, ``valid`` (H, W) bool, ``origin`` (3,) float64), ``envmap.png`` (tone-mapped colour)
+  and ``envmap_depth.png``;
+- ``composites/`` (every ``composite_every``-th composited frame as PNG) and ``composites.mp4`` (all);
+- ``stage_times.csv`` (raw: one row per stage execution) and, generated from it by
+  :mod:`apps.report`, ``timing.csv``, ``timing.md`` and ``timing.png``;
+- ``depth_frames.csv`` (per depth packet: outcome, pairs, MSE, per-frame errors), ``accuracy.json``
+  (flat metric → value against ground truth), ``config.yaml`` (the resolved pipeline config) and
+  ``run.json`` (counts, skipped packets, wall time).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from apps.accuracy import AccuracyTracker
+from apps.preview import depth_to_colourmap, tonemap
+from rgbd_envmap.config import dump_yaml
+from rgbd_envmap.pipeline import ColourStep, DepthStep, Pipeline
+from rgbd_envmap.timing import write_records
+from rgbd_envmap.types import ColourPacket, DepthPacket
+
+__all__ = ["RunOptions", "VideoWriter", "run_pipeline", "save_envmap"]
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """What a run writes besides the map and reports."""
+
+    out: Path
+    composite_every: int = 30
+    video: bool = True
+    progress: bool = True
+    rerun: Path | None = None
+
+
+class VideoWriter:
+    """H.264 MP4 through imageio-ffmpeg (libx264) when present, else OpenCV's MPEG-4 Part 2."""
+
+    def __init__(self, path: Path, fps: float) -> None:
+        self.path = Path(path)
+        self.fps = float(fps)
+        self._gen = None
+        self._cv = None
+
+    def write(self, rgb: np.ndarray) -> None:
+        if self._gen is None and self._cv is None:
+            h, w = rgb.shape[:2]
+            try:
+                import imageio_ffmpeg
+
+                self._gen = imageio_ffmpeg.write_frames(
+                    str(self.path), (w, h), fps=self.fps, codec="libx264", quality=7, macro_block_size=1,
+                    output_params=["-preset", "veryfast"], ffmpeg_log_level="error",
+                )
+                self._gen.send(None)
+            except ImportError:
+                self._cv = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, (w, h))
+        if self._gen is not None:
+            self._gen.send(np.ascontiguousarray(rgb))
+        else:
+            self._cv.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+
+    def close(self) -> None:
+        if self._gen is not None:
+            self._gen.close()
+            self._gen = None
+        if self._cv is not None:
+            self._cv.release()
+            self._cv = None
+
+
+def save_envmap(out: Path, em) -> None:
+    """``envmap.npz`` + colour and depth PNGs of an :class:`~rgbd_envmap.envmap.EnvironmentMap`."""
+    np.savez_compressed(out / "envmap.npz", radiance=np.ascontiguousarray(em.radiance), depth_m=em.depth_m,
+                        valid=em.valid, origin=em.origin)
+    _write_png(out / "envmap.png", tonemap(em.radiance, em.valid) if em.valid.any() else np.zeros((*em.valid.shape, 3), np.uint8))
+    _write_png(out / "envmap_depth.png", depth_to_colourmap(em.depth_m, em.valid, 4.0))
+
+
+def _write_png(path: Path, rgb: np.ndarray) -> None:
+    if not cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
+        raise OSError(f"{path}: could not write PNG")
+
+
+def run_pipeline(
+    pipeline: Pipeline,
+    packets: Iterable[tuple[DepthPacket | ColourPacket, dict]],
+    total: int,
+    opts: RunOptions,
+    *,
+    groundtruth_envmap: Callable[[], dict | None] = lambda: None,
+    extra: dict | Callable[[], dict] | None = None,
+) -> dict:
+    """Feed ``(packet, groundtruth)`` pairs through ``pipeline`` and write the run folder.
+
+    ``groundtruth_envmap`` is called once at the end; it returns the true map as a dict with
+    ``radiance``, ``distance_m``, ``valid``, ``origin`` (or None). Returns the run summary.
+    """
+    from apps.report import write_reports
+
+    out = Path(opts.out)
+    comp_dir = out / "composites"
+    comp_dir.mkdir(parents=True, exist_ok=True)
+    tracker = AccuracyTracker()
+    video = VideoWriter(out / "composites.mp4", pipeline.calibration.colour_rate_hz) if opts.video else None
+    recorder = None
+    if opts.rerun is not None:
+        from apps.rerun_log import RerunRecorder
+
+        recorder = RerunRecorder(opts.rerun, pipeline)
+    n_colour = n_depth = 0
+    depth_gt: dict[int, dict] = {}
+    wall0 = time.perf_counter()
+    try:
+        for packet, gt in tqdm(packets, total=total, desc="pipeline", unit="pkt", disable=not opts.progress):
+            if isinstance(packet, ColourPacket):
+                tracker.on_colour(packet.timestamp_ns, gt)
+                n_colour += 1
+            else:
+                n_depth += 1
+                depth_gt = {packet.timestamp_ns: gt}  # a depth step may complete on the next packet
+            for result in pipeline.feed(packet):
+                if isinstance(result, DepthStep):
+                    tracker.on_depth(result, depth_gt.get(result.timestamp_ns, {}))
+                    if recorder is not None:
+                        recorder.depth(result)
+                elif isinstance(result, ColourStep):
+                    image = result.image if result.image is not None else result.frame_srgb
+                    if video is not None:
+                        video.write(image)
+                    if (n_colour - 1) % opts.composite_every == 0:
+                        _write_png(comp_dir / f"{result.timestamp_ns}.png", image)
+                    if recorder is not None:
+                        recorder.colour(result, packet)
+        pipeline.finish()
+    finally:
+        if video is not None:
+            video.close()
+        if recorder is not None:
+            recorder.close()
+    wall = time.perf_counter() - wall0
+    save_envmap(out, pipeline.capture.em)
+    write_records(out / "stage_times.csv", pipeline.timer.records)
+    _write_depth_frames(out / "depth_frames.csv", tracker.rows)
+    accuracy = tracker.summary(pipeline, groundtruth_envmap())
+    (out / "accuracy.json").write_text(json.dumps(accuracy, indent=2) + "\n")
+    dump_yaml(pipeline.config, out / "config.yaml")
+    summary = {
+        "depth_packets": n_depth, "colour_packets": n_colour, "depth_frames_processed": pipeline.depth_steps,
+        "depth_packets_dropped": pipeline.dropped_depth, "pipeline_wall_s": wall,
+        "em_origin": pipeline.capture.em.origin.tolist(), **((extra() if callable(extra) else extra) or {}),
+    }
+    (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_reports(out)
+    return summary
+
+
+def _write_depth_frames(path: Path, rows: list[dict]) -> None:
+    keys: list[str] = []
+    for r in rows:
+        keys += [k for k in r if k not in keys]
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys or ["timestamp_ns"])
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
