@@ -18,7 +18,7 @@ POSE_TOL = 1e-12
 def recorded(tmp_path_factory):
     out = tmp_path_factory.mktemp("run")
     rc = main(["simulate", "--duration", "0.6", "--out", str(out), "--colour-size", "96x64", "--seed", "3", "--quiet",
-               "--preview-envmap-height", "32"])
+               "--preview-envmap-height", "32", "--record-only", "--em-size", "64x32"])
     assert rc == 0
     return out
 

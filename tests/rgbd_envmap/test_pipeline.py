@@ -1,0 +1,108 @@
+"""Pipeline: packet pairing, stage timing, options; rendering is covered once the object loads."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from rgbd_envmap.capture import CaptureConfig
+from rgbd_envmap.errors import InvalidInputError
+from rgbd_envmap.pipeline import RENDER_STAGES, STAGES, ColourStep, DepthStep, Pipeline, PipelineConfig, RenderConfig
+from sim.colour_camera import ColourCameraConfig
+from sim.device import TangoDeviceConfig
+from sim.scene import load_scene
+from sim.session import Simulator
+from sim.trajectory import load_trajectory
+
+ORIGIN = np.array([0.0, 0.0, 0.8])
+CFG = PipelineConfig(capture=CaptureConfig(height=250, width=500), render=RenderConfig(enabled=False))
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return Simulator(load_scene("office"), load_trajectory("orbit"), TangoDeviceConfig(colour=ColourCameraConfig(width=320, height=180)), seed=2)
+
+
+@pytest.fixture(scope="module")
+def packets(sim):
+    return [sp.packet for sp in sim.run(1.0)]
+
+
+def run(sim, packets, cfg=CFG):
+    pipe = Pipeline(cfg, sim.calibration, ORIGIN)
+    out = [r for p in packets for r in pipe.feed(p)]
+    pipe.finish()
+    return pipe, out
+
+
+def test_every_depth_packet_runs_with_its_colour_frame(sim, packets):
+    pipe, out = run(sim, packets)
+    depth = [r for r in out if isinstance(r, DepthStep)]
+    colour = [r for r in out if isinstance(r, ColourStep)]
+    assert len(depth) == 5 and len(colour) == 30 and pipe.dropped_depth == 0
+    assert depth[0].capture.reference and all(d.timestamp_ns == d.colour_timestamp_ns for d in depth)
+    assert sum(d.capture.projected for d in depth) >= 4
+    assert pipe.capture.em.valid.any() and pipe.has_lighting
+    assert np.abs(pipe.coeffs).max() > 0 and pipe.coeffs.shape == (25, 3)
+    stages = {r.stage for r in pipe.timer.records}
+    assert stages <= set(STAGES)
+    assert {"Point cloud to RGB-D", "Collect paired samples", "Project sample to EM*", "Calculate SH coefficients*"} <= stages
+    # render stages only in colour frames, pipeline stages only in depth frames
+    assert all(r.kind == "colour" for r in pipe.timer.records if r.stage in RENDER_STAGES)
+    assert all(r.kind == "depth" for r in pipe.timer.records if r.stage not in RENDER_STAGES)
+
+
+def test_order_of_depth_and_colour_with_equal_timestamps_does_not_matter(sim, packets):
+    swapped = list(packets)
+    for i in range(len(swapped) - 1):
+        a, b = swapped[i], swapped[i + 1]
+        if a.kind == "depth" and b.kind == "colour" and a.timestamp_ns == b.timestamp_ns:
+            swapped[i], swapped[i + 1] = b, a
+    p1, _ = run(sim, packets)
+    p2, _ = run(sim, swapped)
+    np.testing.assert_array_equal(p1.capture.em.radiance, p2.capture.em.radiance)
+    np.testing.assert_array_equal(p1.coeffs, p2.coeffs)
+
+
+def test_depth_packet_without_a_colour_frame_is_dropped_and_counted(sim, packets):
+    no_colour_at_depth = [p for p in packets if not (p.kind == "colour" and p.timestamp_ns in {q.timestamp_ns for q in packets if q.kind == "depth"})]
+    pipe, out = run(sim, no_colour_at_depth, replace(CFG, max_colour_lag_ms=5.0))
+    assert not any(isinstance(r, DepthStep) for r in out)
+    assert pipe.dropped_depth == 5 and not pipe.capture.em.valid.any()
+    # with a lag allowance of one colour period (33 ms) the next colour frame pairs
+    pipe, out = run(sim, no_colour_at_depth, replace(CFG, max_colour_lag_ms=40.0))
+    assert sum(isinstance(r, DepthStep) for r in out) == 5
+
+
+def test_freeze_and_correction_off(sim, packets):
+    frozen, _ = run(sim, packets, replace(CFG, capture=replace(CFG.capture, freeze=True)))
+    assert not frozen.capture.em.valid.any()
+    assert not any(r.stage.startswith("Project sample") for r in frozen.timer.records)
+    off, out = run(sim, packets, replace(CFG, capture=replace(CFG.capture, colour_correction=False)))
+    assert not any(r.stage == "Collect paired samples" for r in off.timer.records)
+    assert all(d.capture.projected for d in out if isinstance(d, DepthStep))
+
+
+def test_move_object_temporary_and_permanent(sim, packets):
+    pipe, _ = run(sim, packets)
+    before = pipe.capture.em.radiance.copy()
+    c0 = pipe.coeffs.copy()
+    pipe.move_object(np.array([0.1, 0.0, 0.0]))
+    np.testing.assert_array_equal(pipe.capture.em.radiance, before)  # temporary: the stored map is intact
+    assert not np.allclose(pipe.coeffs, c0)
+    np.testing.assert_allclose(pipe.object_base, ORIGIN + [0.1, 0, -0.05])
+    c_temp = pipe.coeffs.copy()
+    pipe.move_object(np.zeros(3), permanent=True)
+    np.testing.assert_allclose(pipe.capture.em.origin, ORIGIN + [0.1, 0, 0])
+    np.testing.assert_allclose(pipe.coeffs, c_temp, rtol=1e-6, atol=1e-9)
+    assert any(r.stage == "EM translation" for r in pipe.timer.records)
+
+
+def test_bad_inputs(sim):
+    with pytest.raises(InvalidInputError, match="origin"):
+        Pipeline(CFG, sim.calibration, np.array([0.0, np.nan, 0.0]))
+    with pytest.raises(InvalidInputError, match="translation_method"):
+        PipelineConfig(translation_method="nope")
+    pipe = Pipeline(CFG, sim.calibration, ORIGIN)
+    with pytest.raises(InvalidInputError, match="packet"):
+        pipe.feed("not a packet")
