@@ -135,3 +135,12 @@ def test_bad_index_files_fail_naming_file_and_line(log_copy, tmp_path, capsys, d
 def test_report_renders_every_stage_error_beside_its_stage(run):
     table = write_reports(run)
     assert table[DEPTH_TOTAL]["count"] == 5
+
+
+def test_rerun_recording_holds_frames_map_and_metrics(run, tmp_path):
+    rrd = tmp_path / "run.rrd"
+    assert main(["replay", str(run / "session"), "--out", str(tmp_path / "r"), "--rerun", str(rrd), "--no-video", *SMALL[2:6]]) == 0
+    data = rrd.read_bytes()
+    assert len(data) > 10_000
+    for entity in (b"world/colour_camera", b"envmap/colour", b"envmap/depth", b"metrics/pairs", b"world/em_origin"):
+        assert entity in data, entity
