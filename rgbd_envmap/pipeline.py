@@ -99,7 +99,8 @@ class RenderConfig:
     """Compositing: ``enabled=False`` skips the object entirely (capture only)."""
 
     enabled: bool = True
-    backend: str = "pyrender"
+    #: "numba" (own rasteriser, ~9 ms at 960×540) or "pyrender" (reference, ~25 ms on llvmpipe): docs/render.md.
+    backend: str = "numba"
     shadow_grey: float = 0.15
 
 
@@ -194,6 +195,7 @@ class Pipeline:
         self._plane = None
         self._cache_dir = cache_dir
         self.colours: np.ndarray | None = None  # (V, 3) shaded object, reference colour space
+        self._shade_out: np.ndarray | None = None
         self.plane_alpha: np.ndarray | None = None
         if config.render.enabled or config.shading.auto_bands:
             self._load_object()
@@ -328,7 +330,11 @@ class Pipeline:
 
         n = self.bands * self.bands
         with self.timer.stage("Shade object (PRT)"):
-            self.colours = prt.shade(self._transfer[:, :n], self.coeffs[:n], self._object.albedo)
+            if self._shade_out is None:
+                self._shade_out = np.empty((len(self._transfer), 3), np.float32)
+            # A fresh buffer per call, not the one the renderer may still hold: swap two buffers.
+            self._shade_out, out = self.colours, self._shade_out
+            self.colours = prt.shade(self._transfer[:, :n], self.coeffs[:n], self._object.albedo, out=out)
             self.plane_alpha = prt.shadow_alpha(self._plane, self.coeffs[:n])
 
     def _colour_step(self, packet: ColourPacket, srgb8: np.ndarray) -> ColourStep:

@@ -8,7 +8,9 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$ROOT/.venv"
 LOG="$ROOT/.venv-bootstrap.log"
 
-apt_packages=(libusb-1.0-0 libegl1 libgl1 libgomp1)
+# libusb: open3d imports only with it; EGL/GL: pyrender's offscreen context (Mesa); libgomp: numba/open3d;
+# libcgal-demo: ships the Stanford bunny (data/meshes/bunny00.off), the default virtual object.
+apt_packages=(libusb-1.0-0 libegl1 libgl1 libgomp1 libcgal-demo)
 missing=()
 for p in "${apt_packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -18,7 +20,7 @@ if [ ${#missing[@]} -gt 0 ]; then
   SUDO=""
   [ "$(id -u)" -ne 0 ] && SUDO="sudo"
   $SUDO apt-get update -qq >>"$LOG" 2>&1
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${missing[@]}" >>"$LOG" 2>&1 || {
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >>"$LOG" 2>&1 || {
     echo "bootstrap: apt-get install failed; see $LOG" >&2; exit 1; }
 fi
 
