@@ -66,6 +66,9 @@ class AccuracyTracker:
         if "true_depth_m" in groundtruth and "true_valid" in groundtruth:
             truth = np.asarray(groundtruth["true_depth_m"], np.float64)
             tv = np.asarray(groundtruth["true_valid"], bool)
+            if truth.shape != step.raw_known.shape:  # the step ran on a subsampled frame (Kinect path)
+                st = truth.shape[0] // step.raw_known.shape[0]
+                truth, tv = truth[::st, ::st], tv[::st, ::st]
             raw = step.raw_known & tv
             filled = step.filled_known & ~step.raw_known & tv
             e_raw = np.abs(step.raw_depth_m[raw] - truth[raw])

@@ -89,6 +89,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--overwrite", action="store_true", help="replace an existing session in OUT")
     sim.add_argument("--quiet", action="store_true", help="no progress bar")
     sim.add_argument("--record-only", action="store_true", help="record the session without running the pipeline")
+    sim.add_argument("--device", choices=("tango", "kinect"), default="tango",
+                     help="tango: ToF point clouds (5 Hz) + NV21 colour (30 Hz), run live; kinect: registered 640×480 depth + "
+                     "colour (30 Hz), recorded as a TUM RGB-D sequence in OUT/session and replayed through the Kinect path")
     _add_pipeline_args(sim)
 
     rep = sub.add_parser(
@@ -138,14 +141,15 @@ def main(argv: list[str] | None = None) -> int:
                 auto_exposure=not args.no_auto_exposure, auto_white_balance=not args.no_auto_white_balance,
                 preview_envmap_height=args.preview_envmap_height, overwrite=args.overwrite, progress=not args.quiet,
                 pipeline=not args.record_only, config=_pipeline_config(args), composite_every=args.composite_every,
-                video=not args.no_video, rerun=args.rerun, cache_dir=args.cache_dir,
+                video=not args.no_video, rerun=args.rerun, cache_dir=args.cache_dir, device=args.device,
             ))
             print(
                 f"recorded {summary['depth_packets']} depth and {summary['colour_packets']} colour packets "
                 f"in {summary['wall_s']:.1f} s → {summary['session']}"
             )
             if summary["pipeline"]:
-                print(f"report: {args.out / 'timing.md'}\ncomposites: {args.out / 'composites.mp4'} and {args.out / 'composites'}/")
+                print(f"report: {args.out / 'timing.md'}\ncomposites: {args.out / 'composites'}/"
+                      + ("" if args.no_video else f" and {args.out / 'composites.mp4'}"))
         elif args.command == "replay":
             from apps.replay import ReplayOptions, run_replay
 

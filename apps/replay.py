@@ -1,6 +1,12 @@
 """``rgbd-envmap replay``: run the pipeline on a recorded session log, no simulator involved.
 
-The log is read packet by packet (:class:`rgbd_envmap.logs.SessionLog`); ground truth stored beside it
+A public TUM RGB-D layout (``rgb.txt``, ``depth.txt``, ``groundtruth.txt``, ``rgb/``, ``depth/``) is
+recognised and replayed through the Kinect path (warp + merge) with no conversion step
+(:func:`rgbd_envmap.tum.read_tum_sequence`: intrinsics from ``calibration.json`` if present, else the
+TUM defaults; rgb, depth and poses associated by nearest timestamp; images without a pose skipped and
+counted). Any other folder is a session log of this project.
+
+A session log is read packet by packet (:class:`rgbd_envmap.logs.SessionLog`); ground truth stored beside it
 (``groundtruth/``) feeds the accuracy report when present. The EM origin is ``--origin`` if given,
 else the origin of the log's true map (``groundtruth/envmap.npz``, written by ``simulate``), else 1 m
 in front of the first colour frame's camera.
@@ -24,7 +30,7 @@ from rgbd_envmap.errors import InvalidInputError, LogFormatError
 from rgbd_envmap.logs import SessionLog
 from rgbd_envmap.pipeline import Pipeline, PipelineConfig
 
-__all__ = ["ReplayOptions", "run_replay", "default_origin"]
+__all__ = ["ReplayOptions", "run_replay", "run_replay_tum", "default_origin", "is_tum_sequence"]
 
 
 @dataclass(frozen=True)
@@ -63,14 +69,85 @@ def default_origin(log: SessionLog) -> np.ndarray:
     return T.translation + T.rotation[:, 2]
 
 
-def run_replay(opts: ReplayOptions) -> dict:
-    log = SessionLog.open(opts.log)
+def is_tum_sequence(path: Path) -> bool:
+    """True for a folder in the public TUM RGB-D layout."""
+    path = Path(path)
+    return (path / "rgb.txt").is_file() and (path / "depth.txt").is_file()
+
+
+def _check_origin(origin) -> np.ndarray:
+    o = np.asarray(origin, np.float64)
+    if o.shape != (3,) or not np.isfinite(o).all():
+        raise InvalidInputError(f"origin: expected three finite numbers, got {origin}")
+    return o
+
+
+def run_replay_tum(opts: ReplayOptions) -> dict:
+    """Replay a TUM RGB-D sequence through the Kinect path."""
+    from rgbd_envmap.tum import read_tum_sequence
+
+    seq = read_tum_sequence(opts.log)
+    if not len(seq):
+        raise LogFormatError(f"{opts.log}: no frame has rgb, depth and a pose within the association window (skipped: {seq.skipped})")
+    skipped: Counter = Counter({f"association_{k}": v for k, v in seq.skipped.items() if v})
+    skipped_files: list[str] = []
+    first = None
+    frames = []
+
+    def load(i: int):
+        try:
+            return seq.load(i)
+        except LogFormatError as exc:
+            if opts.strict:
+                raise
+            skipped["frame"] += 1
+            skipped_files.append(str(exc))
+            return None
+
     if opts.origin is not None:
-        origin = np.asarray(opts.origin, np.float64)
-        if origin.shape != (3,) or not np.isfinite(origin).all():
-            raise InvalidInputError(f"origin: expected three finite numbers, got {opts.origin}")
+        origin = _check_origin(opts.origin)
     else:
-        origin = default_origin(log)
+        first = next(f for f in (load(i) for i in range(len(seq))) if f is not None)
+        T = first.T_world_from_cam
+        origin = T.translation + T.rotation[:, 2]  # 1 m along the first camera's optical axis
+    gt_path = Path(opts.log) / "groundtruth" / "envmap.npz"
+
+    def groundtruth_envmap():
+        if not gt_path.is_file():
+            return None
+        with np.load(gt_path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+
+    truth_dir = Path(opts.log) / "groundtruth" / "frames"
+
+    def with_truth():
+        for i in range(len(seq)):
+            f = load(i)
+            if f is None:
+                continue
+            path = truth_dir / f"{f.timestamp_ns}.npz"
+            gt = {}
+            if path.is_file():
+                with np.load(path, allow_pickle=False) as z:
+                    gt = {k: z[k] for k in z.files}
+            yield f, gt
+
+    with Pipeline(opts.config, seq.calibration, origin, cache_dir=opts.cache_dir) as pipe:
+        summary = run_pipeline(
+            pipe, with_truth(), len(seq),
+            RunOptions(opts.out, composite_every=opts.composite_every, video=opts.video, progress=opts.progress, rerun=opts.rerun),
+            groundtruth_envmap=groundtruth_envmap,
+            extra=lambda: {"source": "replay (TUM RGB-D, Kinect path)", "log": str(opts.log), "skipped": dict(skipped),
+                           "skipped_files": skipped_files[:50]},
+        )
+    return summary
+
+
+def run_replay(opts: ReplayOptions) -> dict:
+    if is_tum_sequence(opts.log):
+        return run_replay_tum(opts)
+    log = SessionLog.open(opts.log)
+    origin = _check_origin(opts.origin) if opts.origin is not None else default_origin(log)
     skipped: Counter = Counter()
     skipped_files: list[str] = []
 

@@ -16,7 +16,6 @@ import numpy as np
 from apps.preview import depth_to_colourmap, tonemap
 from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.pipeline import ColourStep, DepthStep, Pipeline
-from rgbd_envmap.types import ColourPacket
 
 __all__ = ["RerunRecorder"]
 
@@ -46,10 +45,10 @@ class RerunRecorder:
             self._t0 = timestamp_ns
         self.rec.set_time("session", duration=(timestamp_ns - self._t0) * 1e-9)
 
-    def colour(self, step: ColourStep, packet: ColourPacket) -> None:
+    def colour(self, step: ColourStep, T_world_from_colour) -> None:
         rr = self.rr
         self._time(step.timestamp_ns)
-        T = packet.T_world_from_colour
+        T = T_world_from_colour
         self.rec.log("world/colour_camera", rr.Transform3D(translation=T.translation, mat3x3=T.rotation))
         image = step.image if step.image is not None else step.frame_srgb
         self.rec.log("world/colour_camera/image", rr.Image(image).compress(jpeg_quality=85))

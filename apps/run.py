@@ -130,10 +130,20 @@ def run_pipeline(
             if isinstance(packet, ColourPacket):
                 tracker.on_colour(packet.timestamp_ns, gt)
                 n_colour += 1
-            else:
+                pose = packet.T_world_from_colour
+                results = pipeline.feed(packet)
+            elif isinstance(packet, DepthPacket):
                 n_depth += 1
                 depth_gt = {packet.timestamp_ns: gt}  # a depth step may complete on the next packet
-            for result in pipeline.feed(packet):
+                results = pipeline.feed(packet)
+            else:  # a registered RGB-D frame (Kinect / TUM): depth and colour at once
+                n_depth += 1
+                n_colour += 1
+                tracker.on_colour(packet.timestamp_ns, gt)
+                depth_gt = {packet.timestamp_ns: gt}
+                pose = packet.T_world_from_cam
+                results = pipeline.feed_rgbd(packet.timestamp_ns, packet.rgb, packet.depth_m, packet.known, pose)
+            for result in results:
                 if isinstance(result, DepthStep):
                     tracker.on_depth(result, depth_gt.get(result.timestamp_ns, {}))
                     if recorder is not None:
@@ -145,7 +155,7 @@ def run_pipeline(
                     if (n_colour - 1) % opts.composite_every == 0:
                         _write_png(comp_dir / f"{result.timestamp_ns}.png", image)
                     if recorder is not None:
-                        recorder.colour(result, packet)
+                        recorder.colour(result, pose)
         pipeline.finish()
     finally:
         if video is not None:

@@ -28,8 +28,9 @@ References:
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -40,9 +41,10 @@ from rgbd_envmap.checks import check_array, check_method
 from rgbd_envmap.colour import decode_nv21
 from rgbd_envmap.envmap import TRANSLATE_METHODS, EnvironmentMap, translate
 from rgbd_envmap.errors import InvalidInputError
+from rgbd_envmap.ingest.kinect import KinectMergeConfig, KinectMerger, kinect_rgbd_frame
 from rgbd_envmap.ingest.tango import TangoIngestConfig, colour_filled_pixels, colour_registration, rgbd_frame_from_packets
 from rgbd_envmap.timing import StageTimer
-from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket
+from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, RGBDFrame
 
 __all__ = [
     "ShadingConfig", "ObjectConfig", "RenderConfig", "PipelineConfig", "DepthStep", "ColourStep", "Pipeline",
@@ -51,6 +53,7 @@ __all__ = [
 
 #: stage names, in pipeline order, and the paper's Table 1 figure for each (None: no counterpart).
 STAGES = (
+    "Warp + merge depth (Kinect)", "Depth image to RGB-D",
     "YUV420 to linear RGB", "Point cloud to RGB-D", "Mark reliable RGB-D", "Hole filling RGB-D",
     "Collect paired samples", "Compute colour correction matrix", "Calculate MSE", "Project sample to EM*",
     "EM translation", "Calculate SH coefficients*", "Select SH bands", "Shade object (PRT)",
@@ -109,6 +112,8 @@ class PipelineConfig:
     """Every setting of the pipeline, with the paper's defaults (loadable from YAML: rgbd_envmap.config)."""
 
     ingest: TangoIngestConfig = field(default_factory=TangoIngestConfig)
+    #: the Kinect path's warp + merge (sensor "kinect": registered depth + colour images).
+    kinect: KinectMergeConfig = field(default_factory=KinectMergeConfig)
     capture: CaptureConfig = field(default_factory=CaptureConfig)
     shading: ShadingConfig = field(default_factory=ShadingConfig)
     object: ObjectConfig = field(default_factory=ObjectConfig)
@@ -117,11 +122,19 @@ class PipelineConfig:
     translation_method: str = "depth"
     #: a depth packet pairs with the colour frame nearest in time, if within this lag.
     max_colour_lag_ms: float = 20.0
+    #: Kinect path: warp + merge run on every frame (30 Hz); correction, the EM update and SH run on
+    #: every n-th merged frame (6: 5 Hz, the Tango's depth rate) ...
+    kinect_em_every: int = 6
+    #: ... on the merged frame subsampled by this stride (2: 320×240 samples, 307k → 77k per update;
+    #: the update's footprint splat scales with the focal length, so coverage holds).
+    kinect_em_stride: int = 2
 
     def __post_init__(self) -> None:
         check_method(self.translation_method, TRANSLATE_METHODS, "translation_method")
         if not self.max_colour_lag_ms >= 0:
             raise InvalidInputError(f"max_colour_lag_ms: expected ≥ 0, got {self.max_colour_lag_ms}")
+        if self.kinect_em_every < 1 or self.kinect_em_stride < 1:
+            raise InvalidInputError(f"kinect_em_every / kinect_em_stride: expected ≥ 1, got {self.kinect_em_every} / {self.kinect_em_stride}")
         if self.shading.bands < 1 or self.shading.max_bands < 1:
             raise InvalidInputError(f"shading.bands / max_bands: expected ≥ 1, got {self.shading.bands} / {self.shading.max_bands}")
 
@@ -172,12 +185,12 @@ class Pipeline:
         cache_dir: str | Path | None = None,
         timer: StageTimer | None = None,
     ) -> None:
-        if calibration.sensor != "tango":
-            raise InvalidInputError(f"calibration.sensor: this pipeline ingests 'tango' packets, got {calibration.sensor!r}")
         self.config = config
         self.calibration = calibration
         self.capture = EnvironmentCapture(check_array(origin, "origin", shape=(3,), finite=True), config.capture)
         self.timer = timer or StageTimer()
+        self._merger = KinectMerger(calibration.depth, config.kinect) if calibration.sensor == "kinect" else None
+        self._kinect_frames = 0
         max_bands = max(config.shading.bands, config.shading.max_bands if config.shading.auto_bands else 1)
         self.sh_bands_computed = max_bands
         self.bands = config.shading.bands
@@ -236,6 +249,8 @@ class Pipeline:
 
     def feed(self, packet: DepthPacket | ColourPacket) -> list[DepthStep | ColourStep]:
         """Process one packet; returns what it produced (a depth step and / or a composited frame)."""
+        if self._merger is not None:
+            raise InvalidInputError("feed: a 'kinect' pipeline takes registered RGB-D frames; use feed_rgbd")
         lag_ns = self.config.max_colour_lag_ms * 1e6
         out: list[DepthStep | ColourStep] = []
         if isinstance(packet, DepthPacket):
@@ -275,6 +290,43 @@ class Pipeline:
             self.dropped_depth += 1
             self._pending_depth = None
 
+    def feed_rgbd(self, timestamp_ns: int, rgb_srgb8: np.ndarray, depth_m: np.ndarray, known: np.ndarray,
+                  T_world_from_cam) -> list[DepthStep | ColourStep]:
+        """Process one registered RGB-D frame of a Kinect-like sensor (paper 001 §4.2): warp the
+        previous filtered depth into this view and merge it with the new depth, then the same stages
+        as a Tango frame (reliability, correction, EM, SH, shading), then composite this frame.
+
+        Args:
+            rgb_srgb8: (H, W, 3) uint8 sRGB colour, registered to the depth (one pixel grid).
+            depth_m: (H, W) float z-depth in metres, meaningful where ``known``.
+            known: (H, W) bool.
+            T_world_from_cam: the camera's pose (RigidTransform).
+        """
+        if self._merger is None:
+            raise InvalidInputError(f"feed_rgbd needs a 'kinect' calibration, got {self.calibration.sensor!r}")
+        t = self.timer
+        cfg = self.config
+        t.begin("depth")
+        with t.stage("Warp + merge depth (Kinect)"):
+            merged = self._merger.step(depth_m, known, T_world_from_cam)
+        out: list[DepthStep | ColourStep] = []
+        self._kinect_frames += 1
+        if (self._kinect_frames - 1) % cfg.kinect_em_every == 0:
+            self.depth_steps += 1
+            s = cfg.kinect_em_stride
+            intr = self.calibration.depth
+            if s > 1:
+                intr = dataclasses.replace(intr, width=len(range(0, intr.width, s)), height=len(range(0, intr.height, s)),
+                                           fx=intr.fx / s, fy=intr.fy / s, cx=intr.cx / s, cy=intr.cy / s)
+            with t.stage("Depth image to RGB-D"):
+                frame = kinect_rgbd_frame(merged.depth_m[::s, ::s], merged.known[::s, ::s], np.asarray(rgb_srgb8)[::s, ::s],
+                                          T_world_from_cam, intr, timestamp_ns)
+            raw = np.where(known, depth_m, 0).astype(np.float32)[::s, ::s]
+            out.append(self._capture_and_relight(frame, frame, depth_m=raw, known=np.asarray(known)[::s, ::s]))
+        t.begin("colour")
+        out.append(self._render(int(timestamp_ns), T_world_from_cam, np.asarray(rgb_srgb8)))
+        return out
+
     def _depth_step(self, depth: DepthPacket, colour: ColourPacket, srgb8: np.ndarray) -> DepthStep:
         from rgbd_envmap.depth import fill_holes, mark_reliable
 
@@ -295,13 +347,28 @@ class Pipeline:
                 d, k = fill_holes(frame.depth_m, frame.known, method=cfg.ingest.fill_method)
                 T_cd = colour_registration(depth, colour.T_world_from_colour, cal, cfg.ingest.registration)
                 filled = colour_filled_pixels(frame, d, k, srgb8, T_cd, cal.colour)
+        out = self._capture_and_relight(frame, filled, reliable=reliable)
+        return replace(out, timestamp_ns=depth.timestamp_ns, colour_timestamp_ns=colour.timestamp_ns)
+
+    def _capture_and_relight(self, frame: RGBDFrame, filled: RGBDFrame, *, reliable: np.ndarray | None = None,
+                             depth_m: np.ndarray | None = None, known: np.ndarray | None = None) -> DepthStep:
+        """Reliability (unless given), correction + EM update, SH and shading of one ingested frame.
+        ``depth_m`` / ``known``: the sensor's own measurement when ``frame`` is already a merge of it."""
+        from rgbd_envmap.depth import mark_reliable
+
+        t = self.timer
+        if reliable is None:
+            with t.stage("Mark reliable RGB-D"):
+                reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=self.config.ingest.reliability_method)
         step = self.capture.process(frame, reliable, filled, timer=t)
         sh_updated = False
         if step.projected or not self.has_lighting:
             if self.capture.em.valid.any():
                 self._relight()
                 sh_updated = True
-        return DepthStep(depth.timestamp_ns, colour.timestamp_ns, step, frame.depth_m, frame.known,
+        raw_depth = frame.depth_m if depth_m is None else depth_m
+        raw_known = frame.known if known is None else known
+        return DepthStep(frame.timestamp_ns, frame.timestamp_ns, step, raw_depth, raw_known,
                          filled.depth_m, filled.known, sh_updated, self.bands)
 
     def _lighting_map(self) -> EnvironmentMap:
@@ -338,8 +405,11 @@ class Pipeline:
             self.plane_alpha = prt.shadow_alpha(self._plane, self.coeffs[:n])
 
     def _colour_step(self, packet: ColourPacket, srgb8: np.ndarray) -> ColourStep:
+        return self._render(packet.timestamp_ns, packet.T_world_from_colour, srgb8)
+
+    def _render(self, timestamp_ns: int, T_world_from_colour, srgb8: np.ndarray) -> ColourStep:
         if not self.config.render.enabled or self.colours is None:
-            return ColourStep(packet.timestamp_ns, None, srgb8)
+            return ColourStep(timestamp_ns, None, srgb8)
         from rgbd_envmap import render
 
         if self._renderer is None:
@@ -347,14 +417,14 @@ class Pipeline:
         base = self.object_base
         with self.timer.stage("Rasterise"):
             layer = self._renderer.render(
-                packet.T_world_from_colour,
+                T_world_from_colour,
                 self._object.vertices + base, self._object.faces, self.colours,
                 self._plane.vertices + base, self._plane.faces, self.plane_alpha,
             )
         with self.timer.stage("Composite"):
             image = render.composite(srgb8, layer, ccm_inverse=np.linalg.inv(self.capture.matrix),
                                      shadow_grey=self.config.render.shadow_grey)
-        return ColourStep(packet.timestamp_ns, image, srgb8)
+        return ColourStep(timestamp_ns, image, srgb8)
 
     def close(self) -> None:
         if self._renderer is not None:

@@ -540,11 +540,31 @@ def shade(transfer: np.ndarray, coeffs: np.ndarray, albedo, *, out: np.ndarray |
     weights = (L[:K] * (np.broadcast_to(a, (3,)) / math.pi)).astype(np.float32)
     if T.dtype != np.float32:
         T = T.astype(np.float32)
-    Tk = T if K == T.shape[1] else T[:, :K]
-    if out is not None:
+    if out is None:
+        out = np.empty((T.shape[0], 3), np.float32)
+    else:
         check_array(out, "out", shape=(T.shape[0], 3), dtype=np.float32)
-        return np.matmul(Tk, weights, out=out)
-    return Tk @ weights
+    # A single-threaded kernel, not BLAS: a (V, 25) × (25, 3) product is too small for threads, and
+    # on a busy 2-core machine OpenBLAS's thread wake-ups took the median from 0.3 ms to 8–10 ms
+    # inside the pipeline (benchmarks/bench_prt.py times both).
+    _shade_kernel(T, weights, K, out)
+    return out
+
+
+@numba.njit(cache=True, fastmath=True)
+def _shade_kernel(T, w, K, out):  # pragma: no cover - compiled
+    for v in range(T.shape[0]):
+        r = np.float32(0.0)
+        g = np.float32(0.0)
+        b = np.float32(0.0)
+        for k in range(K):
+            t = T[v, k]
+            r += t * w[k, 0]
+            g += t * w[k, 1]
+            b += t * w[k, 2]
+        out[v, 0] = r
+        out[v, 1] = g
+        out[v, 2] = b
 
 
 def _luminance_irradiance(transfer: np.ndarray, L: np.ndarray) -> np.ndarray:
