@@ -126,7 +126,8 @@ def _plot(path: Path, records: list[StageRecord]) -> None:
         ax.set_ylabel("ms")
         ax.set_yscale("log")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, ncol=3, loc="upper right")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7, ncol=3, loc="upper right")
     axes[1].set_xlabel("packet number in the session")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
