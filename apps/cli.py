@@ -21,6 +21,16 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _em_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 2000x1000, got {text!r}") from None
+    if h <= 0 or w != 2 * h:
+        raise argparse.ArgumentTypeError(f"an equirect map is twice as wide as high (W = 2H > 0), got {text!r}")
+    return w, h
+
+
 def _xyz(text: str) -> float:
     try:
         return float(text)
@@ -33,7 +43,7 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--config", type=Path, default=None, metavar="YAML", help="a (partial) PipelineConfig YAML file")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override one setting, e.g. --set capture.ccm_method=least_squares --set shading.bands=3 (repeatable)")
-    g.add_argument("--em-size", type=_size, default=None, metavar="WxH", help="environment map size, e.g. 1000x500")
+    g.add_argument("--em-size", type=_em_size, default=None, metavar="WxH", help="environment map size, e.g. 1000x500")
     g.add_argument("--no-render", action="store_true", help="capture only: no virtual object, no composites")
     o = p.add_argument_group("outputs")
     o.add_argument("--composite-every", type=int, default=30, metavar="N", help="save every N-th composited frame as PNG")

@@ -144,3 +144,26 @@ def test_rerun_recording_holds_frames_map_and_metrics(run, tmp_path):
     assert len(data) > 10_000
     for entity in (b"world/colour_camera", b"envmap/colour", b"envmap/depth", b"metrics/pairs", b"world/em_origin"):
         assert entity in data, entity
+
+
+def test_smaller_map_is_scored_against_the_box_averaged_truth(run, tmp_path):
+    out = tmp_path / "small"
+    assert main(["replay", str(run / "session"), "--out", str(out), "--em-size", "250x125", "--no-render", "--no-video", "--quiet"]) == 0
+    acc = json.loads((out / "accuracy.json").read_text())
+    assert acc["em_truth_downsampled"] == 1.0 and 0 < acc["em_coverage"] <= 1 and np.isfinite(acc["em_ws_psnr_db"])
+
+
+def test_sweep_writes_time_and_error_side_by_side(run, tmp_path):
+    out = tmp_path / "sweep"
+    assert main(["sweep", str(run / "session"), "--out", str(out), "--axes", "translation", "--jobs", "2", "--quiet"]) == 0
+    rows = list(csv.DictReader(open(out / "sweep.csv")))
+    names = [r["setting"] for r in rows]
+    assert names == ["default", "translate 10 cm: depth", "translate 10 cm: gardner"]
+    for r in rows[1:]:
+        assert float(r["axis_stage_median_ms"]) > 0 and 0 < float(r["translation_sphere_correlation"]) <= 1
+    assert (out / "pareto.png").stat().st_size > 0 and "| translation |" in (out / "sweep.md").read_text()
+
+
+def test_sweep_rejects_unknown_axes(run, tmp_path, capsys):
+    assert main(["sweep", str(run / "session"), "--out", str(tmp_path / "s"), "--axes", "colour_of_the_sky", "--quiet"]) == 2
+    assert "colour_of_the_sky" in capsys.readouterr().err
