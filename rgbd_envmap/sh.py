@@ -36,10 +36,12 @@ stable three-term recurrence on the *normalised* functions (no factorials, no ov
 of bands ≥ 1 works.
 
 Projection of an equirect map is separable: Y_k at pixel (v, u) is a row factor (Legendre part,
-depends on v) times a column factor (cos(mφ_u) or sin(|m|φ_u)). So each row is first reduced by a
-small DFT over longitude (one float32 matrix product for the whole map, float32 accumulation over one
-row only), and the rows are then combined in float64 with the Legendre weights times the exact row
-solid angle. The tables depend only on (H, W, bands) and are cached.
+depends on v) times a column factor (cos(mφ_u) or sin(|m|φ_u)). So each row is first reduced to its
+2n − 1 longitude sums (float32, one row at a time, in a numba kernel that folds the four columns
+sharing |cos mφ|, |sin mφ|; see the comment above ``_row_sums_folded``), and the rows are then
+combined in float64 with the Legendre weights times the exact row solid angle. The tables depend only
+on (H, W, bands) and are cached. Planar (3, H, W) storage (``EnvironmentMap``) is read in place.
+docs/sh.md describes the algorithm and its measured cost.
 
 Missing pixels (DESIGN.md §4 stage 8): a pixel with ``valid = False`` takes the radiance of the
 closest data pixel along the 4-connected directions (up, down, left, right) within 50 pixels.
@@ -53,38 +55,56 @@ Invalid input:
   ``geometry.directions_to_equirect``); it does not raise, so one bad normal does not spoil a batch.
 - Wrong shapes raise :class:`ShapeError`; ``bands < 1`` raises :class:`RangeError`; a non-integer
   ``bands`` raises :class:`DTypeError`.
-- ``project_equirect``: NaN or infinity in the radiance at a pixel that contributes (valid pixels, or
-  every pixel when ``valid`` is None) raises :class:`NonFiniteError`. Values under ``valid = False``
-  are never read except as fill sources (which are valid by definition), so they may be NaN.
+- ``project_equirect`` / ``project_planar``: NaN or infinity in the radiance at a pixel that
+  contributes (valid pixels, or every pixel when ``valid`` is None) raises :class:`NonFiniteError`.
+  Values under ``valid = False`` are never used except as fill sources (which are valid by
+  definition), so they may be NaN. An empty map (H or W = 0) raises :class:`ShapeError`; a map with
+  no data at all gives zero coefficients.
   ``irradiance``: non-finite coefficients raise :class:`NonFiniteError`.
+- ``select_bands``: see its docstring (zero shading is reported, not raised).
 
 References:
     - P.-P. Sloan, "Stupid Spherical Harmonics (SH) Tricks", GDC 2008 (basis, sign convention).
     - R. Ramamoorthi and P. Hanrahan, "An Efficient Representation for Irradiance Environment Maps",
       SIGGRAPH 2001 (clamped-cosine band factors Â_l).
     - Paper 003 §7.1 (25 coefficients per channel from the EM; filling of missing EM pixels).
+    - P.-P. Sloan, J. Kautz, J. Snyder, "Precomputed Radiance Transfer for Real-Time Rendering in
+      Dynamic, Low-Frequency Lighting Environments", SIGGRAPH 2002 (transfer vectors, used by
+      ``select_bands``).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from functools import lru_cache
 
 import numba
 import numpy as np
 
 from rgbd_envmap.checks import check_array, check_finite, check_positive_int
-from rgbd_envmap.errors import NonFiniteError, ShapeError
+from rgbd_envmap.errors import (
+    DTypeError,
+    InvalidInputError,
+    NonFiniteError,
+    RangeError,
+    ShapeError,
+)
 from rgbd_envmap.geometry import equirect_solid_angles
 
 __all__ = [
     "FILL_RADIUS_PX",
+    "BandSelection",
+    "TransferGram",
     "basis",
     "fill_missing",
     "irradiance",
     "lambertian_band_factors",
     "n_bands",
     "project_equirect",
+    "project_planar",
+    "select_bands",
+    "transfer_gram",
 ]
 
 FILL_RADIUS_PX = 50
@@ -210,48 +230,167 @@ def irradiance(coeffs: np.ndarray, normals: np.ndarray) -> np.ndarray:
 
 
 # --- missing-pixel fill (stage 8) ---------------------------------------------------------------------
+#
+# The fill is planned once from the mask, then applied while each row is staged for the projection,
+# so no filled copy of the map is ever written. The plan lists the missing pixels row by row with the
+# flat index of the data pixel each one copies (−1: none within the radius). Cost: one pass over the
+# mask 8 pixels (one uint64) at a time, counting the missing pixels of each row, then O(1) work per
+# missing pixel: the vertical source comes from per-column state carried down (then up) the list of
+# missing pixels (the run of missing pixels above a pixel shares its data row), the horizontal one
+# from the runs of missing columns in the row. A missing polar cap therefore costs O(1) per pixel,
+# not a 50-step search per pixel.
+
+_ALL_VALID = np.uint64(0x0101010101010101)  # eight bool bytes, all True
+_BYTE_SUM = np.uint64(0x0101010101010101)  # the top byte of x · this is the sum of x's eight bytes
+
 
 @numba.njit(cache=True)
-def _fill_kernel(radiance, valid, radius):  # pragma: no cover - compiled
-    H, W, C = radiance.shape
-    out = np.empty((H, W, C), dtype=np.float32)
-    used = np.ones((H, W), dtype=np.bool_)
+def _fill_plan(bytes_, words, H, W, radius):  # pragma: no cover - compiled
+    """bytes_: (H, W8) uint8 view of the bool mask (columns ≥ W padded True), words: its (H, W8 / 8)
+    uint64 view (used only to skip and count eight pixels at a time, so byte order does not matter).
+
+    Returns (row_ptr (H + 1,) int64, col (n,) int32, src (n,) int64, empty (H,) bool): the missing
+    pixels of row v are col[row_ptr[v]:row_ptr[v + 1]] (increasing); src is the flat index v' W + u'
+    of the data pixel each copies, or −1; ``empty[v]``: row v contributes nothing (no pixel has or
+    gets data), so the projection skips it without reading it."""
+    nw = words.shape[1]
+    sh56 = np.uint64(56)
+    # 1. missing pixels per row: 8 − (sum of the eight 0/1 bytes), the byte sum by one multiply
+    row_ptr = np.zeros(H + 1, np.int64)
     for v in range(H):
-        for u in range(W):
-            if valid[v, u]:
-                for c in range(C):
-                    out[v, u, c] = radiance[v, u, c]
-                continue
-            sv = -1
-            su = -1
-            for dist in range(1, radius + 1):
-                # fixed tie order: up, down, left, right
-                if v - dist >= 0 and valid[v - dist, u]:
-                    sv, su = v - dist, u
-                elif v + dist < H and valid[v + dist, u]:
-                    sv, su = v + dist, u
-                elif valid[v, (u - dist) % W]:
-                    sv, su = v, (u - dist) % W
-                elif valid[v, (u + dist) % W]:
-                    sv, su = v, (u + dist) % W
-                if sv >= 0:
+        cnt = 0
+        for w in range(nw):
+            x = words[v, w]
+            if x != _ALL_VALID:
+                cnt += 8 - np.int64((x * _BYTE_SUM) >> sh56)
+        row_ptr[v + 1] = row_ptr[v] + cnt
+    n = row_ptr[H]
+    col = np.empty(n + 8, np.int32)
+    src = np.full(n, -1, np.int64)
+    dist = np.full(n, radius + 1, np.int32)
+    # Vertical sources use per-column state, top-down then bottom-up: a missing pixel right below
+    # (above) a missing one shares its data row; otherwise the data row is the adjacent one.
+    prev = np.full(W, -2, np.int64)  # row of the last missing pixel seen in the column
+    run = np.full(W, -1, np.int64)  # the data row above (below) that pixel's run; −1 (H): the pole
+    # 2. top-down: list the missing pixels of each row (row-major), then their "up" source
+    k = 0
+    for v in range(H):
+        k0 = row_ptr[v]
+        k1 = row_ptr[v + 1]
+        if k0 == k1:
+            continue
+        for w in range(nw):
+            x = words[v, w]
+            if x != _ALL_VALID:
+                for u in range(8 * w, 8 * w + 8):  # branch-free append (8 spare slots)
+                    col[k] = u
+                    k += 1 - np.int64(bytes_[v, u])
+        for t in range(k0, k1):
+            u = col[t]
+            up = run[u] if prev[u] == v - 1 else v - 1
+            prev[u] = v
+            run[u] = up
+            if up >= 0 and v - up <= radius:
+                dist[t] = v - up
+                src[t] = up * W + u
+    # 3. bottom-up: "down" (strictly closer only: up wins ties), then left and right from the runs
+    #    of missing columns in the row, wrapping across the seam, each only when strictly closer
+    #    (the fixed tie order up, down, left, right).
+    prev[:] = H + 1
+    run[:] = H
+    empty = np.zeros(H, np.bool_)
+    for v in range(H - 1, -1, -1):
+        k0 = row_ptr[v]
+        k1 = row_ptr[v + 1]
+        if k0 == k1:
+            continue
+        for t in range(k1 - 1, k0 - 1, -1):
+            u = col[t]
+            dn = run[u] if prev[u] == v + 1 else v + 1
+            prev[u] = v
+            run[u] = dn
+            if dn < H and dn - v < dist[t] and dn - v <= radius:
+                dist[t] = dn - v
+                src[t] = dn * W + u
+        if k1 - k0 == W:  # no data in the row: no horizontal sources
+            empty[v] = True
+            for t in range(k0, k1):
+                if src[t] >= 0:
+                    empty[v] = False
                     break
-            if sv >= 0:
+            continue
+        first_end = -1  # last column of the run that starts at column 0, if any
+        if col[k0] == 0:
+            j = k0
+            while j + 1 < k1 and col[j + 1] == col[j] + 1:
+                j += 1
+            first_end = col[j]
+        last_start = W  # first column of the run that ends at column W − 1, if any
+        if col[k1 - 1] == W - 1:
+            j = k1 - 1
+            while j - 1 >= k0 and col[j - 1] == col[j] - 1:
+                j -= 1
+            last_start = col[j]
+        t0 = k0
+        while t0 < k1:
+            j = t0
+            while j + 1 < k1 and col[j + 1] == col[j] + 1:
+                j += 1
+            left = col[t0] - 1 if col[t0] > 0 else last_start - 1
+            right = col[j] + 1 if col[j] < W - 1 else first_end + 1
+            for t in range(t0, j + 1):
+                u = col[t]
+                dl = u - left  # wraps across the seam when left is past u
+                if dl < 0:
+                    dl += W
+                if dl < dist[t] and dl <= radius:
+                    dist[t] = dl
+                    src[t] = v * W + left
+                dr = right - u
+                if dr < 0:
+                    dr += W
+                if dr < dist[t] and dr <= radius:
+                    dist[t] = dr
+                    src[t] = v * W + right
+            t0 = j + 1
+    return row_ptr, col[:n], src, empty
+
+
+@numba.njit(cache=True)
+def _apply_fill(rad, row_ptr, col, src, out, used):  # pragma: no cover - compiled
+    """Overwrite the missing pixels of ``out`` (a copy of ``rad``) with their sources, 0 if none."""
+    H, W, C = rad.shape
+    for v in range(H):
+        for k in range(row_ptr[v], row_ptr[v + 1]):
+            u = col[k]
+            s = src[k]
+            if s >= 0:
                 for c in range(C):
-                    out[v, u, c] = radiance[sv, su, c]
+                    out[v, u, c] = rad[s // W, s % W, c]
             else:
                 used[v, u] = False
                 for c in range(C):
                     out[v, u, c] = 0.0
-    return out, used
+
+
+def _plan(valid: np.ndarray, radius_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    H, W = valid.shape
+    if W % 8:
+        valid = np.pad(valid, ((0, 0), (0, 8 - W % 8)), constant_values=True)
+    b = np.ascontiguousarray(valid).view(np.uint8)
+    return _fill_plan(b, b.view(np.uint64), H, W, radius_px)
 
 
 def fill_missing(radiance: np.ndarray, valid: np.ndarray, radius_px: int = FILL_RADIUS_PX
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Fill missing EM pixels from the closest data pixel along up / down / left / right.
 
+    :func:`project_equirect` applies the same rule row by row without building this filled copy;
+    this function is for looking at the result.
+
     Args:
-        radiance: (H, W, 3) float linear radiance; values under ``valid = False`` are not read.
+        radiance: (H, W, 3) float linear radiance; values under ``valid = False`` are not used (NaN
+            is fine there).
         valid: (H, W) bool, True where the EM has data.
         radius_px: largest search distance in pixels (50 in the paper).
 
@@ -263,78 +402,513 @@ def fill_missing(radiance: np.ndarray, valid: np.ndarray, radius_px: int = FILL_
     rad = check_array(radiance, "radiance", shape=("H", "W", 3), dtype=("float", "int"))
     valid = check_array(valid, "valid", shape=rad.shape[:2], dtype="bool")
     radius_px = check_positive_int(radius_px, "radius_px")
-    return _fill_kernel(rad, np.ascontiguousarray(valid), radius_px)
+    row_ptr, col, src, _ = _plan(valid, radius_px)
+    out = rad.astype(np.float32, order="C")  # a copy; its missing pixels are overwritten below
+    used = np.ones(rad.shape[:2], bool)
+    _apply_fill(rad, row_ptr, col, src, out, used)
+    return out, used
 
 
 # --- projection ---------------------------------------------------------------------------------------
+#
+# Per row and channel the kernel needs the 2n − 1 longitude sums Σ_u r(u) cos(mφ_u), Σ_u r(u) sin(mφ_u).
+# Pixel-centre azimuths are symmetric: columns u, W − 1 − u have azimuths ±φ, and columns u, u ± W/2
+# differ by π, so with W divisible by 4 the four columns q, W − 1 − q, W/2 − 1 − q, W/2 + q share
+# |cos mφ|, |sin mφ| up to the signs (−1)^m and ±1. Folding them first (4 loads, 8 adds) leaves one
+# multiply-add per quarter of the row per (m, cos/sin). Each row is first copied to a small buffer
+# (a sequential read that the hardware prefetcher streams; the folded loads run backwards and would
+# not be prefetched well), missing pixels are filled in that buffer, and the fold + sums run from L1
+# with 10 float32 accumulators per pass of 5 orders m (blocks of 5: one pass for the default 5 bands).
+
+_BLOCK = 5
+# Reassociation lets LLVM vectorise the float32 reductions. No 'nnan' / 'ninf': NaN and inf must
+# propagate into the sums, the finiteness check of the result relies on it.
+_FASTMATH = {"reassoc", "contract"}
+_U1 = np.uint64(1)
+_U2 = np.uint64(2)
+_U4 = np.uint64(4)
+
+
+@numba.njit(fastmath=_FASTMATH, inline="always", cache=True)
+def _row_sums_folded(r, tcb, tsb, o):  # pragma: no cover - compiled
+    """o[m, 0] = Σ_u cos(mφ_u) r[u], o[m, 1] = Σ_u sin(mφ_u) r[u] for m < 5 · nblocks; W % 4 == 0.
+    tcb, tsb: (nblocks, 5, W/4) cos / sin of mφ_q at the first quarter's azimuths."""
+    # unsigned indices: numba's negative-index wrap on signed ones blocks vectorisation of r[W − 1 − q]
+    W = np.uint64(r.shape[0])
+    Q = W // _U4
+    h = W // _U2
+    for j in range(tcb.shape[0]):
+        tc = tcb[j]
+        ts = tsb[j]
+        # m = 5j + i: the parity of m flips with j; scaling the second pair by sg swaps the
+        # even / odd combinations instead of branching.
+        sg = np.float32(1.0) if j % 2 == 0 else np.float32(-1.0)
+        c0 = c1 = c2 = c3 = c4 = np.float32(0.0)
+        s0 = s1 = s2 = s3 = s4 = np.float32(0.0)
+        for q in range(Q):
+            a = r[q]
+            b = r[W - _U1 - q]
+            c = r[h - _U1 - q]
+            d = r[h + q]
+            p1 = a + b
+            p2 = sg * (c + d)
+            m1 = a - b
+            m2 = sg * (d - c)
+            ce = p1 + p2
+            co = p1 - p2
+            se = m1 + m2
+            so = m1 - m2
+            c0 += tc[0, q] * ce
+            c1 += tc[1, q] * co
+            c2 += tc[2, q] * ce
+            c3 += tc[3, q] * co
+            c4 += tc[4, q] * ce
+            s0 += ts[0, q] * se
+            s1 += ts[1, q] * so
+            s2 += ts[2, q] * se
+            s3 += ts[3, q] * so
+            s4 += ts[4, q] * se
+        k = _BLOCK * j
+        o[k, 0] = c0
+        o[k + 1, 0] = c1
+        o[k + 2, 0] = c2
+        o[k + 3, 0] = c3
+        o[k + 4, 0] = c4
+        o[k, 1] = s0
+        o[k + 1, 1] = s1
+        o[k + 2, 1] = s2
+        o[k + 3, 1] = s3
+        o[k + 4, 1] = s4
+
+
+@numba.njit(fastmath=_FASTMATH, inline="always", cache=True)
+def _row_sums_plain(r, tcb, tsb, o):  # pragma: no cover - compiled
+    """As :func:`_row_sums_folded` for any W; tables (nblocks, 5, W)."""
+    W = r.shape[0]
+    for j in range(tcb.shape[0]):
+        tc = tcb[j]
+        ts = tsb[j]
+        c0 = c1 = c2 = c3 = c4 = np.float32(0.0)
+        s0 = s1 = s2 = s3 = s4 = np.float32(0.0)
+        for u in range(W):
+            x = r[u]
+            c0 += tc[0, u] * x
+            c1 += tc[1, u] * x
+            c2 += tc[2, u] * x
+            c3 += tc[3, u] * x
+            c4 += tc[4, u] * x
+            s0 += ts[0, u] * x
+            s1 += ts[1, u] * x
+            s2 += ts[2, u] * x
+            s3 += ts[3, u] * x
+            s4 += ts[4, u] * x
+        k = _BLOCK * j
+        o[k, 0] = c0
+        o[k + 1, 0] = c1
+        o[k + 2, 0] = c2
+        o[k + 3, 0] = c3
+        o[k + 4, 0] = c4
+        o[k, 1] = s0
+        o[k + 1, 1] = s1
+        o[k + 2, 1] = s2
+        o[k + 3, 1] = s3
+        o[k + 4, 1] = s4
+
+
+@numba.njit(fastmath=_FASTMATH, inline="always", cache=True)
+def _accumulate_row(buf, v, c, tcb, tsb, folded, row_w, m_abs, m_sin, sums, coeffs):  # pragma: no cover
+    if folded:
+        _row_sums_folded(buf, tcb, tsb, sums)
+    else:
+        _row_sums_plain(buf, tcb, tsb, sums)
+    for k in range(row_w.shape[1]):
+        coeffs[k, c] += row_w[v, k] * np.float64(sums[m_abs[k], m_sin[k]])
+
+
+@numba.njit(fastmath=_FASTMATH, cache=True)
+def _project_planar(planes, row_ptr, col, src, empty, tcb, tsb, folded, row_w, m_abs, m_sin):  # pragma: no cover
+    H, W = planes.shape[1:]  # 3 planes
+    coeffs = np.zeros((row_w.shape[1], 3), np.float64)
+    buf = np.empty((3, W), np.float32)
+    b0 = buf[0]
+    b1 = buf[1]
+    b2 = buf[2]
+    sums = np.empty((tcb.shape[0] * _BLOCK, 2), np.float32)
+    flat = planes.reshape(3, H * W)
+    f0 = flat[0]
+    f1 = flat[1]
+    f2 = flat[2]
+    for v in range(H):  # three sequential streams, one per plane
+        if empty[v]:
+            continue
+        r0 = planes[0, v]
+        r1 = planes[1, v]
+        r2 = planes[2, v]
+        for u in range(W):
+            b0[u] = r0[u]
+        for u in range(W):
+            b1[u] = r1[u]
+        for u in range(W):
+            b2[u] = r2[u]
+        for k in range(row_ptr[v], row_ptr[v + 1]):
+            s = src[k]
+            u = col[k]
+            if s >= 0:
+                b0[u] = f0[s]
+                b1[u] = f1[s]
+                b2[u] = f2[s]
+            else:
+                b0[u] = np.float32(0.0)
+                b1[u] = np.float32(0.0)
+                b2[u] = np.float32(0.0)
+        for c in range(3):
+            _accumulate_row(buf[c], v, c, tcb, tsb, folded, row_w, m_abs, m_sin, sums, coeffs)
+    return coeffs
+
+
+@numba.njit(fastmath=_FASTMATH, cache=True)
+def _project_interleaved(rad, row_ptr, col, src, empty, tcb, tsb, folded, row_w, m_abs, m_sin):  # pragma: no cover
+    H, W = rad.shape[:2]  # 3 channels
+    coeffs = np.zeros((row_w.shape[1], 3), np.float64)
+    buf = np.empty((3, W), np.float32)
+    b0 = buf[0]
+    b1 = buf[1]
+    b2 = buf[2]
+    sums = np.empty((tcb.shape[0] * _BLOCK, 2), np.float32)
+    rows = rad.reshape(H, W * 3)
+    flat = rad.reshape(H * W * 3)
+    u3 = np.uint64(3)
+    for v in range(H):
+        if empty[v]:
+            continue
+        r = rows[v]
+        for u in range(np.uint64(W)):  # de-interleave into channel rows (unsigned: vectorises)
+            i = u3 * u
+            b0[u] = r[i]
+            b1[u] = r[i + _U1]
+            b2[u] = r[i + _U2]
+        for k in range(row_ptr[v], row_ptr[v + 1]):
+            s = src[k]
+            u = col[k]
+            for c in range(3):
+                buf[c, u] = flat[3 * s + c] if s >= 0 else np.float32(0.0)
+        for c in range(3):
+            _accumulate_row(buf[c], v, c, tcb, tsb, folded, row_w, m_abs, m_sin, sums, coeffs)
+    return coeffs
+
 
 @lru_cache(maxsize=8)
-def _projection_tables(height: int, width: int, bands: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cached tables for ``project_equirect``.
+def _projection_tables(height: int, width: int, bands: int):
+    """Cached, read-only tables for the projection (they depend only on the map size and bands).
 
-    Returns (K, row_w, col_index):
-        K: (3W, 3(2n − 1)) float32, the longitude DFT table expanded over the interleaved RGB channels
-           (kron with I₃), so one matrix product reduces every row of the (H, 3W) radiance view.
-           Table column j ↔ m = j − (n − 1): sin(|m|φ) for m < 0, cos(mφ) for m ≥ 0.
-        row_w: (H, n²) float64, the Legendre part of Y_k at each row (incl. sin^|m| θ and √2) times the
-           exact solid angle of one pixel of that row.
-        col_index: (n²,) index of the table column used by each k.
+    Returns (tcb, tsb, folded, row_w, m_abs, m_sin):
+        tcb, tsb: (nblocks, 5, L) float32 cos(mφ), sin(mφ) for m = 5j + i (zero for m ≥ bands), at
+            the first quarter of the columns (L = W/4, ``folded``) or at every column (L = W).
+        row_w: (H, n²) float64, the Legendre part of Y_k at each row (incl. sin^|m| θ and √2) times
+            the exact solid angle of one pixel of that row.
+        m_abs, m_sin: (n²,) int64, where the row sum used by coefficient k sits: sums[|m|, m < 0].
     """
     n = bands
+    folded = width % 4 == 0
+    nblocks = -(-n // _BLOCK)
+    ncols = width // 4 if folded else width
+    phi = 2.0 * np.pi * (np.arange(ncols) + 0.5) / width - np.pi
+    m = np.arange(nblocks * _BLOCK)
+    tcb = np.cos(m[:, None] * phi[None, :])
+    tsb = np.sin(m[:, None] * phi[None, :])
+    tcb[n:] = 0.0
+    tsb[n:] = 0.0
+    tcb = tcb.astype(np.float32).reshape(nblocks, _BLOCK, ncols)
+    tsb = tsb.astype(np.float32).reshape(nblocks, _BLOCK, ncols)
     theta = np.pi * (np.arange(height) + 0.5) / height
-    phi = 2.0 * np.pi * (np.arange(width) + 0.5) / width - np.pi
-    m = np.arange(-(n - 1), n)
-    trig = np.where(m[:, None] < 0, np.sin(np.abs(m)[:, None] * phi), np.cos(m[:, None] * phi))
-    K = np.kron(trig.T, np.eye(3)).astype(np.float32)  # (3W, 3(2n − 1)); row 3u + c, column 3j + c
-    K.setflags(write=False)
     leg = _legendre_scaled(np.cos(theta), n)
     m_of_k = np.concatenate([np.arange(-l, l + 1) for l in range(n)])
     leg *= np.sin(theta)[:, None] ** np.abs(m_of_k)[None, :]
     row_w = leg * equirect_solid_angles(height, width)[:, :1]
-    row_w.setflags(write=False)
-    col_index = m_of_k + (n - 1)
-    col_index.setflags(write=False)
-    return K, row_w, col_index
+    m_abs = np.abs(m_of_k).astype(np.int64)
+    m_sin = (m_of_k < 0).astype(np.int64)
+    for a in (tcb, tsb, row_w, m_abs, m_sin):
+        a.setflags(write=False)
+    return tcb, tsb, folded, row_w, m_abs, m_sin
 
 
-def project_equirect(radiance: np.ndarray, valid: np.ndarray | None = None, bands: int = 5) -> np.ndarray:
+_NO_MISSING = (np.zeros(0, np.int32), np.zeros(0, np.int64))  # (col, src) of an empty fill plan
+
+
+def _project(data: np.ndarray, planar: bool, valid: np.ndarray | None, bands: int, radius_px: int,
+             name: str = "radiance") -> np.ndarray:
+    """``data`` is C-contiguous float32, (3, H, W) when ``planar`` else (H, W, 3); checked already."""
+    H, W = data.shape[1:] if planar else data.shape[:2]
+    if valid is None:
+        row_ptr, (col, src), empty = np.zeros(H + 1, np.int64), _NO_MISSING, np.zeros(H, bool)
+    else:
+        row_ptr, col, src, empty = _plan(valid, radius_px)
+    tables = _projection_tables(H, W, bands)
+    kernel = _project_planar if planar else _project_interleaved
+    coeffs = kernel(data, row_ptr, col, src, empty, *tables)
+    if not np.isfinite(coeffs).all():  # NaN / inf propagate into the sums (cheap path otherwise)
+        where = "" if valid is None else " (at valid pixels)"
+        chans = [data[c] if planar else data[..., c] for c in range(3)]
+        for ch in chans:
+            check_finite(ch if valid is None else ch[valid], name + where)
+        raise NonFiniteError(f"{name}: the projection overflowed float32/float64; scale the map down")
+    return coeffs
+
+
+def _check_map_size(H: int, W: int, name: str) -> None:
+    if H == 0 or W == 0:
+        raise ShapeError(f"{name}: expected a non-empty map, got {H}×{W} pixels")
+
+
+def project_equirect(radiance: np.ndarray, valid: np.ndarray | None = None, bands: int = 5, *,
+                     fill_radius_px: int = FILL_RADIUS_PX) -> np.ndarray:
     """SH coefficients L_k = Σ_p Y_k(d_p) radiance_p Ω_p of an equirect radiance map.
 
     Args:
-        radiance: (H, W, 3) float linear radiance (float32 is the fast path; other dtypes are
-            converted to float32). Directions and exact solid angles follow docs/CONVENTIONS.md.
-        valid: (H, W) bool or None (every pixel has data). Missing pixels are filled first as in
+        radiance: (H, W, 3) float linear radiance. Fast paths (no copy): float32 C-contiguous, and
+            float32 whose channel axis is outermost in memory, i.e. the (H, W, 3) view of planar
+            (3, H, W) storage such as ``EnvironmentMap.radiance``. Anything else is converted to
+            float32 first. Directions and exact solid angles follow docs/CONVENTIONS.md.
+        valid: (H, W) bool or None (every pixel has data). Missing pixels are filled as in
             DESIGN.md §4 stage 8 (see :func:`fill_missing`); pixels that cannot be filled are skipped.
+            A map with no data at all gives zero coefficients.
         bands: number of bands n ≥ 1.
+        fill_radius_px: the fill's search radius in pixels (paper: 50).
 
     Returns:
-        (n², 3) float64 coefficients.
+        (n², 3) float64 coefficients. Row sums over longitude are float32 (relative error ~1e-7),
+        rows are combined in float64.
 
     Raises:
-        ShapeError: wrong shapes. RangeError / DTypeError: bad ``bands``. NonFiniteError: NaN or
-        infinity at a contributing pixel (or a sum that overflows).
+        ShapeError: wrong shapes or an empty map. RangeError / DTypeError: bad ``bands`` or
+        ``fill_radius_px``. NonFiniteError: NaN or infinity at a contributing pixel (or a sum that
+        overflows).
     """
     bands = check_positive_int(bands, "bands")
+    radius_px = check_positive_int(fill_radius_px, "fill_radius_px")
     rad = check_array(radiance, "radiance", shape=("H", "W", 3), dtype=("float", "int"))
     H, W = rad.shape[:2]
+    _check_map_size(H, W, "radiance")
     if valid is not None:
         valid = check_array(valid, "valid", shape=(H, W), dtype="bool")
-        if valid.all():
-            valid = None
-    if valid is None:
-        work = np.ascontiguousarray(rad, dtype=np.float32)
+    planes = rad.transpose(2, 0, 1)
+    if rad.dtype == np.float32 and planes.flags.c_contiguous:
+        return _project(planes, True, valid, bands, radius_px)
+    return _project(np.ascontiguousarray(rad, dtype=np.float32), False, valid, bands, radius_px)
+
+
+def project_planar(planes: np.ndarray, valid: np.ndarray | None = None, bands: int = 5, *,
+                   fill_radius_px: int = FILL_RADIUS_PX) -> np.ndarray:
+    """:func:`project_equirect` for planar (3, H, W) radiance (the storage of ``EnvironmentMap``).
+
+    Args:
+        planes: (3, H, W) float linear radiance; float32 C-contiguous is used without a copy.
+        valid, bands, fill_radius_px: as for :func:`project_equirect`.
+
+    Returns:
+        (n², 3) float64 coefficients, identical to ``project_equirect(planes.transpose(1, 2, 0), ...)``.
+    """
+    bands = check_positive_int(bands, "bands")
+    radius_px = check_positive_int(fill_radius_px, "fill_radius_px")
+    p = check_array(planes, "planes", shape=(3, "H", "W"), dtype=("float", "int"))
+    H, W = p.shape[1:]
+    _check_map_size(H, W, "planes")
+    if valid is not None:
+        valid = check_array(valid, "valid", shape=(H, W), dtype="bool")
+    return _project(np.ascontiguousarray(p, dtype=np.float32), True, valid, bands, radius_px, "planes")
+
+
+# --- band selection ("model only what a scene needs") -----------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class TransferGram:
+    """G = Tᵀ diag(w) T of an object's per-vertex transfer vectors, for :func:`select_bands`.
+
+    It depends only on the object (and the vertex weights), so compute it once with
+    :func:`transfer_gram`; band selection from it costs O(K²) per frame instead of O(V K).
+
+    Attributes:
+        gram: (K, K) float64, read-only; K = bands² of the transfer.
+        n_vertices: V, the number of transfer rows it summarises.
+    """
+
+    gram: np.ndarray
+    n_vertices: int
+
+
+def transfer_gram(transfer: np.ndarray, weights: np.ndarray | None = None) -> TransferGram:
+    """Precompute :class:`TransferGram` from (V, K) transfer vectors (see :func:`select_bands`).
+
+    Args:
+        transfer: (V, K) float transfer vectors, V ≥ 1, K = n² (finite).
+        weights: optional (V,) non-negative finite vertex weights (e.g. vertex areas); default 1.
+    """
+    T = _check_transfer(transfer)
+    w = _check_weights(weights, T.shape[0])
+    T64 = T.astype(np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):  # non-finite input is reported below
+        G = T64.T @ (T64 if w is None else T64 * w[:, None])
+    if not np.isfinite(G).all():
+        raise NonFiniteError("transfer: expected finite values, got NaN or inf (or an overflowing sum)")
+    G = 0.5 * (G + G.T)
+    G.setflags(write=False)
+    return TransferGram(G, int(T.shape[0]))
+
+
+@dataclass(frozen=True, eq=False)
+class BandSelection:
+    """Result of :func:`select_bands`.
+
+    Attributes:
+        bands: the chosen number of bands n (1 ≤ n ≤ ``max_bands``).
+        max_bands: N, the band count of the reference shading.
+        errors: (N,) float64, read-only; ``errors[n − 1]`` is the relative RMS error e_n of shading
+            with n bands against N bands (so ``errors[N − 1] == 0``).
+        tolerance: the tolerance the selection used.
+        degenerate: True when the reference shading is zero (see :func:`select_bands`); then every
+            error is reported as 0 and one band is chosen.
+    """
+
+    bands: int
+    max_bands: int
+    errors: np.ndarray
+    tolerance: float
+    degenerate: bool = False
+
+
+def _check_transfer(transfer: np.ndarray) -> np.ndarray:
+    T = check_array(transfer, "transfer", shape=("V", "K"), dtype="float")
+    if T.shape[0] == 0:
+        raise ShapeError("transfer: expected at least one vertex, got shape (0, K)")
+    n = math.isqrt(T.shape[1])
+    if n < 1 or n * n != T.shape[1]:
+        raise ShapeError(f"transfer: expected n² columns (1, 4, 9, 16, 25, ...), got {T.shape[1]}")
+    return T
+
+
+def _check_weights(weights: np.ndarray | None, n_vertices: int) -> np.ndarray | None:
+    if weights is None:
+        return None
+    w = check_array(weights, "weights", shape=(n_vertices,), dtype=("float", "int"), finite=True)
+    if (w < 0).any():
+        raise RangeError(f"weights: expected values ≥ 0, got minimum {w.min()}")
+    return w.astype(np.float64)
+
+
+# Relative size under which the reference shading counts as zero (see select_bands).
+_ZERO_SHADING = 1e-12
+
+
+def select_bands(coeffs: np.ndarray, transfer: np.ndarray | TransferGram, tolerance: float = 0.01,
+                 max_bands: int | None = None, *, weights: np.ndarray | None = None) -> BandSelection:
+    """The fewest SH bands whose shading of an object stays within ``tolerance`` of all bands.
+
+    With per-vertex transfer vectors T (V, K) in this module's convention (T_k = ∫ V(ω) max(n·ω, 0)
+    Y_k(ω) dω, see ``rgbd_envmap.prt``) and radiance coefficients L, the shading with n bands is
+    S_n = T[:, :n²] L[:n²] (V, 3); the outgoing radiance is (albedo / π) S_n. With N = ``max_bands``
+    the reference is S_N, and the error of n bands is the relative RMS over vertices and channels
+
+        e_n = ‖S_n − S_N‖ / ‖S_N‖,   ‖X‖² = Σ_v w_v Σ_c X_vc²   (w_v = 1 unless ``weights``).
+
+    The result is the smallest n with e_n ≤ ``tolerance``. Because S_n − S_N = −Σ_{j≥n} B_j with
+    B_j the band-j contribution, e_n only involves the tail; from a :class:`TransferGram`
+    G = Tᵀ diag(w) T it is ‖tail‖² = Σ_c L_tail,cᵀ G L_tail,c, computed in O(K²).
+
+    Zero shading guard: if ‖S_N‖ ≤ 1e-12 · Σ_j ‖B_j‖ (a black environment, zero transfer, or bands
+    that cancel exactly) there is nothing to resolve; every e_n is reported as 0, one band is chosen
+    and ``degenerate`` is set. Otherwise the division is safe (‖S_N‖ > 0).
+
+    ``tolerance = 0`` selects the fewest bands that reproduce S_N exactly, which is N unless the top
+    bands contribute nothing (unshadowed transfer T_k = Â_l Y_k(n) has Â_l = 0 for odd l ≥ 3).
+
+    Args:
+        coeffs: (n_c², 3) float radiance coefficients (finite), e.g. from :func:`project_equirect`.
+        transfer: (V, n_t²) float transfer vectors (V ≥ 1), or a :class:`TransferGram` of them.
+        tolerance: largest accepted e_n, ≥ 0 (default 1 %).
+        max_bands: N; default min(n_c, n_t). Must not exceed either.
+        weights: optional (V,) non-negative vertex weights (with a raw ``transfer`` only; a
+            :class:`TransferGram` has them built in).
+
+    Returns:
+        :class:`BandSelection`.
+
+    Raises:
+        ShapeError: bad shapes (non-square coefficient counts, no vertices). RangeError: negative or
+        non-finite tolerance, ``max_bands`` out of range, negative weights. NonFiniteError: NaN or
+        infinity in the coefficients, or in the transfer (detected through the result).
+        InvalidInputError: ``weights`` given with a :class:`TransferGram`.
+
+    Cost: 35k vertices × 64 transfer columns, 8 bands: see benchmarks/bench_sh.py (a raw transfer
+    costs one pass over T per frame; a TransferGram costs microseconds).
+    """
+    L = check_array(coeffs, "coeffs", shape=("K", 3), dtype=("float", "int"), finite=True).astype(np.float64)
+    nb_c = n_bands(L.shape[0])
+    try:
+        tol = float(tolerance)
+    except (TypeError, ValueError) as exc:
+        raise DTypeError(f"tolerance: expected a number, got {tolerance!r}") from exc
+    if not (math.isfinite(tol) and tol >= 0.0):
+        raise RangeError(f"tolerance: expected a finite value ≥ 0, got {tolerance!r}")
+    if isinstance(transfer, TransferGram):
+        if weights is not None:
+            raise InvalidInputError("weights: a TransferGram already includes its vertex weights; "
+                                    "pass weights to transfer_gram instead")
+        G = transfer.gram
+        nb_t = math.isqrt(G.shape[0])
+        T = w = None
     else:
-        work, _ = _fill_kernel(rad, np.ascontiguousarray(valid), FILL_RADIUS_PX)
-    K, row_w, col_index = _projection_tables(H, W, bands)
-    # (H, 3W) @ (3W, 3(2n − 1)) → per row, per table column j, per channel c: Σ_u trig_j(u) r(u, c).
-    with np.errstate(invalid="ignore", over="ignore"):
-        rows = (work.reshape(H, 3 * W) @ K).reshape(H, 2 * bands - 1, 3).astype(np.float64)
-        coeffs = np.einsum("vk,vkc->kc", row_w, rows[:, col_index, :])
-    if not np.isfinite(coeffs).all():  # NaN/inf propagate through the matmul (NaN·0 = NaN)
-        # Non-finite input propagates into the sums; find it for the message (cheap path otherwise).
-        if valid is None:
-            check_finite(rad, "radiance")
-        else:
-            check_finite(rad[valid], "radiance (at valid pixels)")
-        raise NonFiniteError("radiance: the projection overflowed float32/float64; scale the map down")
-    return coeffs
+        T = _check_transfer(transfer)
+        w = _check_weights(weights, T.shape[0])
+        nb_t = math.isqrt(T.shape[1])
+        G = None
+    if max_bands is None:
+        N = min(nb_c, nb_t)
+    else:
+        N = check_positive_int(max_bands, "max_bands")
+        if N > min(nb_c, nb_t):
+            raise RangeError(f"max_bands: expected ≤ {min(nb_c, nb_t)} (coeffs have {nb_c} bands, "
+                             f"transfer {nb_t}), got {N}")
+    L = L[:N * N]
+    with np.errstate(invalid="ignore", over="ignore"):  # non-finite transfer is reported below
+        tail, band = _tail_energies(L, N, G, T, w)
+    if not (np.isfinite(tail).all() and np.isfinite(band).all()):
+        raise NonFiniteError("transfer: expected finite values, got NaN or inf (or an overflowing sum)")
+    tail = np.maximum(tail, 0.0)
+    ref = math.sqrt(tail[0])
+    degenerate = ref <= _ZERO_SHADING * float(band.sum())
+    if degenerate:
+        errors = np.zeros(N)
+        bands = 1
+    else:
+        errors = np.sqrt(tail[1:]) / ref
+        errors[-1] = 0.0
+        bands = int(np.argmax(errors <= tol)) + 1
+    errors.setflags(write=False)
+    return BandSelection(bands=bands, max_bands=N, errors=errors, tolerance=tol, degenerate=degenerate)
+
+
+def _tail_energies(L, N, G, T, w):
+    """tail[n] = ‖Σ_{j≥n} B_j‖² for n = 0 … N (tail[0] = ‖S_N‖², tail[N] = 0) and band[j] = ‖B_j‖,
+    from the Gram matrix G (when T is None) or from the transfer T directly."""
+    if T is None:
+        K = N * N
+        M = G[:K, :K] * (L @ L.T)  # M[k, j] = G[k, j] Σ_c L[k, c] L[j, c]
+        C = np.zeros((K + 1, K + 1))  # C[a, b] = Σ_{k ≥ a, j ≥ b} M[k, j]
+        C[:K, :K] = M[::-1, ::-1].cumsum(0).cumsum(1)[::-1, ::-1]
+        a = np.arange(N + 1) ** 2  # band j spans rows / columns a[j] … a[j + 1] − 1
+        tail = C[a, a]
+        block = C[a[:-1], a[:-1]] - C[a[:-1], a[1:]] - C[a[1:], a[:-1]] + C[a[1:], a[1:]]
+        band = np.sqrt(np.maximum(block, 0.0))
+    else:
+        Lt = L.astype(T.dtype)  # float32 transfer: float32 products (BLAS sgemm), float64 sums
+        sw = None if w is None else np.sqrt(w)[:, None]
+        R = np.zeros((T.shape[0], 3))
+        tail = np.zeros(N + 1)
+        band = np.zeros(N)
+        for j in range(N - 1, -1, -1):  # R = Σ_{i≥j} B_i, built from the top band down
+            B = T[:, j * j:(j + 1) ** 2] @ Lt[j * j:(j + 1) ** 2]
+            R += B
+            Bw, Rw = (B, R) if sw is None else (B * sw, R * sw)
+            band[j] = math.sqrt(float(np.vdot(Bw, Bw)))
+            tail[j] = float(np.vdot(Rw, Rw))
+    return tail, band

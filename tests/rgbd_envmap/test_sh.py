@@ -2,16 +2,22 @@
 
 References are independent of the code under test: the DESIGN.md §3 table of the first 9 functions,
 scipy.special.sph_harm_y (complex SH) converted to the real Condon–Shortley basis, quadrature on an
-equirect grid with directions and solid angles re-derived here, closed-form coefficients of the
-constant and hemisphere functions, a slow obvious implementation of the fill rule and a brute-force
-clamped-cosine convolution.
+equirect grid with directions and solid angles re-derived here, Gauss–Legendre × uniform-azimuth
+quadrature (exact for band-limited products), closed-form coefficients of the constant and hemisphere
+functions, two implementations of the fill rule (a slow obvious per-pixel search and a vectorised
+one that shifts the mask one distance at a time) and a brute-force clamped-cosine convolution; for
+band selection, the shading T[:, :n²] @ L[:n²] formed explicitly for every n.
 
 Tolerances:
     basis vs scipy: 1e-6 absolute (both float64, values O(1)).
-    orthonormality by quadrature on 400×800: 1e-3 (midpoint-rule error ~ (l π / H)² ≈ 3e-4 at l = 7).
+    orthonormality by equirect quadrature on 200×400: 1e-3 (midpoint-rule error ~ (l π / H)²;
+        measured 1.4e-4 at l ≤ 7); by Gauss–Legendre quadrature: 1e-10 up to 30 bands (exact rule).
     projection vs float64 brute force: 1e-5 relative to the largest coefficient (float32 row sums).
     hemisphere at 3 bands: the 3-band result is exactly π/2 + (π/2) z (L_20 of the hemisphere is 0),
         so the only error is quadrature of the map, < 1e-4 at 250×500.
+    band-selection errors vs explicit float64 shading: 1e-9 relative for float64 transfer and the
+        Gram path (which loses ~1e-16 / e² relative in e², negligible for e ≳ 1e-6); 1e-6 for a
+        float32 transfer, whose products select_bands forms in float32.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ from scipy.special import eval_legendre, sph_harm_y
 from rgbd_envmap import sh
 from rgbd_envmap.errors import (
     DTypeError,
+    InvalidInputError,
     NonFiniteError,
     RangeError,
     RgbdEnvmapError,
@@ -146,10 +153,22 @@ def test_basis_matches_scipy_at_poles_and_seam():
 
 
 def test_orthonormal_by_quadrature():
-    d, omega = grid(400, 800)
+    d, omega = grid(200, 400)
     Y = sh.basis(d.reshape(-1, 3), 8)
     gram = Y.T @ (Y * omega.reshape(-1, 1))
     assert np.abs(gram - np.eye(64)).max() <= 1e-3
+
+
+def gauss_sphere(bands):
+    """Directions and weights of a rule exact for products of two band-(bands) functions:
+    Gauss–Legendre in z = cos θ (exact to degree 2·bands − 1) × 2·bands uniform azimuths."""
+    z, wz = np.polynomial.legendre.leggauss(bands)
+    phi = 2 * np.pi * np.arange(2 * bands) / (2 * bands)
+    Z, P = np.meshgrid(z, phi, indexing="ij")
+    s = np.sqrt(1 - Z ** 2)
+    d = np.stack([s * np.cos(P), s * np.sin(P), Z], -1).reshape(-1, 3)
+    w = np.repeat(wz * (np.pi / bands), 2 * bands)
+    return d, w
 
 
 def test_basis_shapes_scaling_and_tiling():
@@ -163,12 +182,17 @@ def test_basis_shapes_scaling_and_tiling():
     assert sh.basis(np.array([[0, 0, 1]]), 3).shape == (1, 9)  # integer input accepted
 
 
-def test_high_band_count_is_finite_and_normalised():
-    d, omega = grid(200, 400)
-    Y = sh.basis(d.reshape(-1, 3), 30)
+def test_high_band_count_is_exactly_orthonormal():
+    # 30 bands = 900 functions; an exact quadrature leaves only rounding (the recurrence is stable).
+    d, w = gauss_sphere(30)
+    Y = sh.basis(d, 30)
     assert np.isfinite(Y).all()
-    norms = (Y * Y * omega.reshape(-1, 1)).sum(0)
-    np.testing.assert_allclose(norms, 1.0, atol=5e-2)
+    np.testing.assert_allclose(Y.T @ (Y * w[:, None]), np.eye(900), atol=1e-10)
+
+
+def test_basis_empty_input():
+    assert sh.basis(np.zeros((0, 3)), 5).shape == (0, 25)
+    assert sh.irradiance(np.zeros((9, 3)), np.zeros((0, 3))).shape == (0, 3)
 
 
 def test_bad_directions_give_nan_rows():
@@ -229,15 +253,35 @@ def test_hemisphere_light_three_bands():
     np.testing.assert_allclose(E[:, 0], [np.pi, 0, np.pi / 2, np.pi / 2], atol=1e-4)
 
 
+@pytest.mark.slow
 def test_projection_matches_float64_brute_force_2000x1000():
+    # Brute force: every pixel's basis row (sh.basis, itself checked against scipy above) × its
+    # exact solid angle, summed in float64. The map has structure at every m the projection uses.
     rad = smooth_map(1000, 2000)
-    L = sh.project_equirect(rad, bands=5)
+    rng = np.random.default_rng(11)
+    rad += rng.uniform(0, 0.2, rad.shape).astype(np.float32)  # plus pixel noise
     d, omega = grid(1000, 2000)
     ref = np.zeros((25, 3))
     for v0 in range(0, 1000, 100):  # chunks keep memory small
-        Y = scipy_real_sh(d[v0:v0 + 100].reshape(-1, 3), 5)
+        Y = sh.basis(d[v0:v0 + 100].reshape(-1, 3), 5)
         ref += Y.T @ (rad[v0:v0 + 100].reshape(-1, 3).astype(np.float64) * omega[v0:v0 + 100].reshape(-1, 1))
+    L = sh.project_equirect(rad, bands=5)
     assert np.abs(L - ref).max() <= 1e-5 * np.abs(ref).max()
+    planes = np.ascontiguousarray(np.moveaxis(rad, -1, 0))
+    np.testing.assert_array_equal(sh.project_planar(planes), L)  # same sums in the same order
+    np.testing.assert_array_equal(sh.project_equirect(planes.transpose(1, 2, 0)), L)
+
+
+@pytest.mark.parametrize("H,W", [(40, 80), (20, 36), (15, 30), (9, 27), (5, 6), (2, 4), (1, 1), (3, 2)])
+@pytest.mark.parametrize("bands", [1, 5, 6, 11])
+def test_projection_matches_scipy_brute_force_any_size(H, W, bands):
+    # W % 4 == 0 takes the folded kernel, other widths the plain one; 6 and 11 bands need 2 and 3
+    # passes of 5 orders m.
+    rng = np.random.default_rng(H * W + bands)
+    rad = rng.uniform(0, 1, (H, W, 3)).astype(np.float32)
+    ref = brute_project(rad, bands)
+    L = sh.project_equirect(rad, bands=bands)
+    assert np.abs(L - ref).max() <= 1e-6 * max(np.abs(ref).max(), 1e-300)
 
 
 def test_projection_of_basis_function_recovers_it():
@@ -463,3 +507,312 @@ def test_float64_and_single_band():
     L = sh.project_equirect(rad, bands=1)
     assert L.shape == (1, 3)
     np.testing.assert_allclose(L, brute_project(rad, 1), rtol=1e-6)
+
+
+def test_projection_empty_all_invalid_and_overflow():
+    for shape in [(0, 0, 3), (0, 8, 3), (4, 0, 3)]:
+        with pytest.raises(ShapeError, match="non-empty"):
+            sh.project_equirect(np.zeros(shape, np.float32))
+    with pytest.raises(ShapeError, match="non-empty"):
+        sh.project_planar(np.zeros((3, 0, 8), np.float32))
+    # no data at all: nothing can be filled, nothing contributes (values under valid=False unread)
+    rad = np.full((10, 20, 3), np.nan, np.float32)
+    np.testing.assert_array_equal(sh.project_equirect(rad, np.zeros((10, 20), bool)), np.zeros((25, 3)))
+    filled, used = sh.fill_missing(rad, np.zeros((10, 20), bool))
+    assert not used.any() and (filled == 0).all()
+    with pytest.raises(NonFiniteError, match="overflow"):
+        sh.project_equirect(np.full((10, 20, 3), 3e38, np.float32))
+
+
+def test_layouts_and_dtypes_agree():
+    rng = np.random.default_rng(12)
+    rad = smooth_map(30, 60, seed=12)
+    valid = rng.uniform(size=(30, 60)) > 0.3
+    rad_nan = np.where(valid[..., None], rad, np.nan).astype(np.float32)
+    want = sh.project_equirect(rad_nan, valid, bands=6)
+    planes = np.ascontiguousarray(np.moveaxis(rad_nan, -1, 0))
+    np.testing.assert_array_equal(sh.project_planar(planes, valid, bands=6), want)
+    np.testing.assert_array_equal(sh.project_equirect(planes.transpose(1, 2, 0), valid, bands=6), want)
+    big = np.zeros((40, 90, 3), np.float32)
+    big[5:35, 10:70] = rad_nan
+    np.testing.assert_array_equal(sh.project_equirect(big[5:35, 10:70], valid, bands=6), want)  # strided view
+    np.testing.assert_allclose(sh.project_equirect(rad_nan.astype(np.float64), valid, bands=6), want, atol=1e-12)
+    np.testing.assert_array_equal(sh.project_planar(planes.astype(np.float64), valid, bands=6), want)
+    np.testing.assert_array_equal(sh.project_equirect(rad_nan, np.asfortranarray(valid), bands=6), want)
+
+
+def test_project_planar_errors():
+    with pytest.raises(ShapeError):
+        sh.project_planar(np.zeros((10, 20, 3), np.float32))
+    with pytest.raises(ShapeError):
+        sh.project_planar(np.zeros((3, 10, 20), np.float32), np.ones((20, 10), bool))
+    with pytest.raises(DTypeError):
+        sh.project_planar(np.zeros((3, 10, 20), bool))
+    with pytest.raises(RangeError):
+        sh.project_planar(np.zeros((3, 10, 20), np.float32), fill_radius_px=0)
+
+
+# --- the stage-8 fill on realistic masks ------------------------------------------------------------
+
+def shift_fill(rad, valid, radius=50):
+    """The rule vectorised: for distance 1, 2, …, and within one distance up, down, left, right, a
+    pixel not yet filled takes the first data pixel found (rows clipped at the poles, columns wrap)."""
+    H, W = valid.shape
+    out = np.where(valid[..., None], rad, 0.0).astype(np.float32)
+    found = valid.copy()
+    for dist in range(1, radius + 1):
+        for dv, du in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            src_ok = np.zeros((H, W), bool)
+            src_val = np.zeros((H, W, 3), np.float32)
+            if dv:
+                lo, hi = max(0, -dv * dist), min(H, H - dv * dist)  # rows whose source is on the map
+                if lo >= hi:
+                    continue
+                src_ok[lo:hi] = valid[lo + dv * dist:hi + dv * dist]
+                src_val[lo:hi] = rad[lo + dv * dist:hi + dv * dist]
+            else:
+                src_ok = np.roll(valid, -du * dist, axis=1)
+                src_val = np.roll(rad, -du * dist, axis=1)
+            take = ~found & src_ok
+            out[take] = src_val[take]
+            found |= take
+    return out, found
+
+
+def blob_crack_mask(H, W, frac, seed, cap_rows=0):
+    """~frac missing in discs (radius 1–H/40) and 1–2 px polylines, optionally a missing top cap."""
+    cv2 = pytest.importorskip("cv2")
+    rng = np.random.default_rng(seed)
+    miss = np.zeros((H, W), np.uint8)
+    for _ in range(max(2, W // 50)):
+        pts = np.cumsum(rng.normal(0, W / 30, (5, 2)), 0) + rng.uniform([0, 0], [W, H])
+        cv2.polylines(miss, [pts.astype(np.int32).reshape(-1, 1, 2)], False, 1, int(rng.integers(1, 3)))
+    while miss.mean() < frac:
+        c = rng.uniform([0, 0], [W, H]).astype(int)
+        cv2.circle(miss, (int(c[0]), int(c[1])), int(rng.integers(1, max(2, H // 40))), 1, -1)
+    miss[:, :3] |= miss[:, -3:]  # some runs across the seam
+    miss[:cap_rows] = 1
+    return miss == 0
+
+
+def test_vectorised_reference_matches_slow_rule():
+    rng = np.random.default_rng(13)
+    for seed in range(3):
+        valid = rng.uniform(size=(20, 44)) > 0.7
+        valid[:4] = False
+        rad = rng.uniform(0, 1, (20, 44, 3)).astype(np.float32)
+        want, want_used = slow_fill(rad, valid, radius=7)
+        out, used = shift_fill(rad, valid, radius=7)
+        np.testing.assert_array_equal(used, want_used)
+        np.testing.assert_array_equal(out, want.astype(np.float32))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cap_rows", [0, 120])
+def test_fill_and_projection_on_realistic_mask(cap_rows):
+    # 3 % missing in blobs and cracks at 500×1000 (and a missing polar cap of 120 rows: pixels more
+    # than 50 rows from data are skipped).
+    H, W = 500, 1000
+    valid = blob_crack_mask(H, W, 0.03, seed=cap_rows, cap_rows=cap_rows)
+    rad = smooth_map(H, W, seed=14) + np.random.default_rng(14).uniform(0, 0.1, (H, W, 3)).astype(np.float32)
+    want, want_used = shift_fill(rad, valid)
+    rad[~valid] = np.nan  # never read
+    out, used = sh.fill_missing(rad, valid)
+    np.testing.assert_array_equal(used, want_used)
+    np.testing.assert_array_equal(out, want)
+    assert cap_rows == 0 or not used[:cap_rows - 50].any()
+    L = sh.project_equirect(rad, valid)
+    d, omega = grid(H, W)
+    ref = sh.basis(d.reshape(-1, 3), 5).T @ (want.reshape(-1, 3).astype(np.float64) * omega.reshape(-1, 1))
+    assert np.abs(L - ref).max() <= 1e-5 * np.abs(ref).max()
+
+
+@st.composite
+def masks(draw):
+    H = draw(st.integers(1, 16))
+    W = draw(st.integers(1, 40))
+    valid = np.ones((H, W), bool)
+    for _ in range(draw(st.integers(0, 6))):  # missing rectangles, rows, columns (maybe wrapping)
+        v0, v1 = sorted(draw(st.tuples(st.integers(0, H), st.integers(0, H))))
+        u0 = draw(st.integers(0, W - 1))
+        width = draw(st.integers(0, W))
+        cols = (u0 + np.arange(width)) % W
+        valid[v0:v1, cols] = False
+    noise = draw(st.floats(0, 1))
+    seed = draw(st.integers(0, 2 ** 16))
+    valid &= np.random.default_rng(seed).uniform(size=(H, W)) >= noise * 0.5
+    radius = draw(st.integers(1, 12))
+    return valid, radius, seed
+
+
+@settings(max_examples=60, deadline=None)
+@given(masks())
+def test_fill_property_matches_slow_rule(case):
+    valid, radius, seed = case
+    H, W = valid.shape
+    rad = np.random.default_rng(seed).uniform(0, 1, (H, W, 3)).astype(np.float32)
+    want, want_used = slow_fill(rad, valid, radius=radius)
+    rad[~valid] = np.nan
+    out, used = sh.fill_missing(rad, valid, radius_px=radius)
+    np.testing.assert_array_equal(used, want_used)
+    np.testing.assert_array_equal(out[used], want[used].astype(np.float32))
+    L = sh.project_equirect(rad, valid, bands=3, fill_radius_px=radius)
+    ref = brute_project(np.where(want_used[..., None], want, 0.0), 3)
+    assert np.abs(L - ref).max() <= 1e-6 * max(1.0, np.abs(ref).max())
+
+
+def test_fill_single_data_pixel_in_row_and_wrapping_runs():
+    H, W = 3, 16
+    rad = np.zeros((H, W, 3), np.float32)
+    valid = np.zeros((H, W), bool)
+    valid[1, 5] = True
+    rad[1, 5] = 9
+    out, used = sh.fill_missing(rad, valid, radius_px=8)
+    # row 1: columns 5 − 8 … 5 + 8 (wrapping) reach the one pixel; left wins at equal distance 8
+    assert used[1].all() and (out[1, :, 0] == 9).all()
+    assert used[0, 5] and used[2, 5] and not used[0, 4]  # vertical only straight up / down
+    valid[:] = True
+    valid[1, :3] = valid[1, -2:] = False  # one run across the seam: columns 14, 15, 0, 1, 2
+    rad[:] = (np.arange(W) + 100 * np.arange(H)[:, None])[..., None]  # value = 100 v + u
+    out, _ = sh.fill_missing(rad, valid)
+    np.testing.assert_array_equal(out[1, [14, 15, 0, 1, 2], 0], [14, 15, 0, 1, 2])  # up (row 0) first
+    valid[0] = valid[2] = False  # now only horizontal sources: 113 on the left, 103 on the right
+    out, used = sh.fill_missing(rad, valid)
+    np.testing.assert_array_equal(out[1, [14, 15, 0, 1, 2], 0], [113, 113, 113, 103, 103])  # tie at 0 → left
+    out, used = sh.fill_missing(rad, valid, radius_px=1)
+    np.testing.assert_array_equal(used[1, [14, 15, 0, 1, 2]], [True, False, False, False, True])
+    assert out[1, 14, 0] == 113 and out[1, 2, 0] == 103
+
+
+# --- band selection -----------------------------------------------------------------------------------
+
+def unshadowed_transfer(normals, bands):
+    """T_k(n) = Â_l Y_k(n): the PRT transfer of an unoccluded vertex (Funk–Hecke)."""
+    a = sh.lambertian_band_factors(bands)
+    return sh.basis(normals, bands) * a[np.repeat(np.arange(bands), 2 * np.arange(bands) + 1)]
+
+
+def sphere_normals(n, seed=0):
+    d = np.random.default_rng(seed).normal(size=(n, 3))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def explicit_errors(L, T, N, w=None):
+    w = np.ones(T.shape[0]) if w is None else w
+    ref = T[:, :N * N] @ L[:N * N]
+    norm = lambda X: np.sqrt((w[:, None] * X * X).sum())
+    return np.array([norm(T[:, :n * n] @ L[:n * n] - ref) / norm(ref) for n in range(1, N + 1)])
+
+
+def test_unshadowed_transfer_shades_like_irradiance():
+    n = sphere_normals(50)
+    L = np.random.default_rng(1).normal(size=(36, 3))
+    np.testing.assert_allclose(unshadowed_transfer(n, 6) @ L, sh.irradiance(L, n), atol=1e-12)
+
+
+def test_select_bands_constant_environment_needs_one_band():
+    L = sh.project_equirect(np.full((100, 200, 3), 0.7, np.float32), bands=8)
+    T = unshadowed_transfer(sphere_normals(2000), 8).astype(np.float32)
+    r = sh.select_bands(L, T)
+    assert r.bands == 1 and r.max_bands == 8 and not r.degenerate
+    assert r.errors[0] < 1e-3  # only the θ-quadrature residue of the even bands
+
+
+def test_select_bands_directional_light_needs_more():
+    # a small bright source (radius 5°) over a dim uniform background
+    d, _ = grid(200, 400)
+    s = np.array([0.3, -0.4, 0.85]) / np.linalg.norm([0.3, -0.4, 0.85])
+    rad = (0.05 + 50.0 * (d @ s > np.cos(np.radians(5))))[..., None].repeat(3, -1).astype(np.float32)
+    L = sh.project_equirect(rad, bands=8)
+    T = unshadowed_transfer(sphere_normals(5000), 8)
+    r = sh.select_bands(L, T, tolerance=0.01)
+    assert r.bands >= 5
+    assert r.errors[r.bands - 1] <= 0.01 < r.errors[r.bands - 2]  # the fewest that pass
+    np.testing.assert_allclose(r.errors, explicit_errors(L, T, 8), rtol=1e-9, atol=1e-12)
+    # a looser tolerance never needs more bands
+    assert sh.select_bands(L, T, tolerance=0.1).bands <= r.bands
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_select_bands_matches_explicit_shading_raw_and_gram(weighted):
+    rng = np.random.default_rng(3)
+    T = rng.normal(size=(400, 49)).astype(np.float32)  # "shadowed": no band is zero
+    L = rng.normal(size=(64, 3)) / (1 + np.arange(64))[:, None]
+    w = rng.uniform(0, 2, 400) if weighted else None
+    want = explicit_errors(L, T.astype(np.float64), 7, w)
+    raw = sh.select_bands(L, T, tolerance=0.05, weights=w)
+    gram = sh.select_bands(L, sh.transfer_gram(T, w), tolerance=0.05)
+    for r, rtol in ((raw, 1e-6), (gram, 1e-9)):  # raw float32 transfer: float32 products
+        assert r.max_bands == 7  # transfer has 7 bands, coeffs 8
+        np.testing.assert_allclose(r.errors, want, rtol=rtol, atol=1e-12)
+        assert r.bands == int(np.argmax(want <= 0.05)) + 1
+    assert sh.select_bands(L, T, 0.0).bands == 7  # tolerance 0: the maximum
+    assert sh.select_bands(L, T, 0.0, max_bands=4).bands == 4
+    assert sh.select_bands(L, T, 1.0).bands == 1
+
+
+def test_select_bands_tolerance_zero_and_zero_bands():
+    # Unshadowed transfer: Â_l = 0 for odd l ≥ 3, so band l = 7 adds exactly nothing and 7 bands
+    # reproduce 8 exactly; with max_bands = 7 (top band l = 6, nonzero) tolerance 0 gives 7.
+    L = np.random.default_rng(4).normal(size=(64, 3))
+    T = unshadowed_transfer(sphere_normals(500), 8)
+    assert sh.select_bands(L, T, 0.0).bands == 7
+    assert sh.select_bands(L, T, 0.0, max_bands=7).bands == 7
+    assert sh.select_bands(L, sh.transfer_gram(T), 0.0).bands == 7
+
+
+def test_select_bands_degenerate_black_scene():
+    T = unshadowed_transfer(sphere_normals(100), 5)
+    r = sh.select_bands(np.zeros((25, 3)), T)
+    assert r.degenerate and r.bands == 1 and (r.errors == 0).all()
+    r = sh.select_bands(np.zeros((25, 3)), sh.transfer_gram(T))
+    assert r.degenerate and r.bands == 1
+    assert sh.select_bands(np.ones((25, 3)), np.zeros((10, 25))).degenerate  # zero transfer
+
+
+def test_select_bands_result_is_frozen():
+    r = sh.select_bands(np.ones((9, 3)), unshadowed_transfer(sphere_normals(10), 3))
+    with pytest.raises(AttributeError):
+        r.bands = 2
+    with pytest.raises(ValueError):
+        r.errors[0] = 1.0
+    g = sh.transfer_gram(np.ones((4, 9)))
+    assert g.gram.shape == (9, 9) and g.n_vertices == 4 and not g.gram.flags.writeable
+
+
+def test_select_bands_bad_input():
+    T = unshadowed_transfer(sphere_normals(20), 4)
+    L = np.ones((16, 3))
+    bad = L.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(NonFiniteError):
+        sh.select_bands(bad, T)
+    Tb = T.copy()
+    Tb[5, 2] = np.inf
+    with pytest.raises(NonFiniteError):
+        sh.select_bands(L, Tb)
+    with pytest.raises(NonFiniteError):
+        sh.transfer_gram(Tb)
+    for tol in (-0.1, np.nan, np.inf):
+        with pytest.raises(RangeError):
+            sh.select_bands(L, T, tol)
+    with pytest.raises(DTypeError):
+        sh.select_bands(L, T, "small")
+    for mb in (0, 5):
+        with pytest.raises(RangeError):
+            sh.select_bands(L, T, max_bands=mb)
+    with pytest.raises(ShapeError):
+        sh.select_bands(np.ones((15, 3)), T)
+    with pytest.raises(ShapeError):
+        sh.select_bands(L, T[:, :15])
+    with pytest.raises(ShapeError):
+        sh.select_bands(L, np.zeros((0, 16)))
+    with pytest.raises(ShapeError):
+        sh.select_bands(L, T[:, :, None])
+    with pytest.raises(ShapeError):
+        sh.select_bands(L, T, weights=np.ones(19))
+    with pytest.raises(RangeError):
+        sh.select_bands(L, T, weights=-np.ones(20))
+    with pytest.raises(InvalidInputError):
+        sh.select_bands(L, sh.transfer_gram(T), weights=np.ones(20))
+    assert issubclass(InvalidInputError, RgbdEnvmapError)
