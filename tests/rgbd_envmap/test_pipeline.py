@@ -129,3 +129,15 @@ def test_composites_draw_the_lit_object_with_its_shadow_over_the_frame():
     assert pipe.plane_alpha.max() > 0.3  # the plane under the object is in shadow
     assert {"Rasterise", "Composite", "Shade object (PRT)"} <= {r.stage for r in pipe.timer.records}
     pipe.close()
+
+
+def test_auto_bands_picks_the_fewest_bands_within_tolerance(sim, packets):
+    from rgbd_envmap.pipeline import ShadingConfig
+
+    cfg = replace(CFG, shading=ShadingConfig(bands=5, auto_bands=True, band_tolerance=0.05, max_bands=6),
+                  object=ObjectConfig(name="blob", prt_dirs=128, plane_resolution=8))
+    pipe, out = run(sim, packets, cfg)
+    assert pipe.coeffs.shape == (36, 3) and 1 <= pipe.bands <= 6
+    assert any(r.stage == "Select SH bands" for r in pipe.timer.records)
+    strict, _ = run(sim, packets, replace(cfg, shading=replace(cfg.shading, band_tolerance=1e-9)))
+    assert strict.bands >= pipe.bands
