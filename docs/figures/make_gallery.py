@@ -31,11 +31,12 @@ from sim.session import Simulator  # noqa: E402
 from sim.trajectory import load_trajectory  # noqa: E402
 
 VIEWS = {
-    # name: (eye, target, object offset from the EM origin)
-    "at_origin": ((-0.15, -0.95, 1.30), (0.05, 0.0, 0.80), (0.0, 0.0, 0.0)),
-    "towards_red": ((-0.15, -0.95, 1.30), (0.15, 0.0, 0.80), (0.25, 0.0, 0.0)),
-    "towards_blue": ((-0.15, -0.95, 1.30), (0.0, 0.1, 0.80), (0.0, 0.22, 0.0)),
-    "from_above": ((0.55, -0.55, 1.45), (0.0, 0.0, 0.78), (0.0, 0.0, 0.0)),
+    # name: (eye, target, object offset from the EM origin). The panels stand at +x (red), −y (green)
+    # and +y (blue); the views look in from the open −x side, over the table.
+    "at_origin": ((-0.75, -0.15, 1.15), (0.10, 0.0, 0.80), (0.0, 0.0, 0.0)),
+    "towards_red": ((-0.75, -0.15, 1.15), (0.10, 0.0, 0.80), (0.28, 0.0, 0.0)),
+    "towards_blue": ((-0.75, -0.15, 1.15), (0.10, 0.0, 0.80), (0.0, 0.24, 0.0)),
+    "towards_green": ((-0.75, -0.15, 1.15), (0.10, 0.0, 0.80), (0.0, -0.24, 0.0)),
 }
 
 
@@ -67,7 +68,7 @@ def main() -> None:
     pipe._load_object()
     pipe._relight()
     args.out.mkdir(parents=True, exist_ok=True)
-    tiles = []
+    tiles, closeups = [], []
     t_s = last.t_s
     ns = last.packet.timestamp_ns
     for name, (eye, target, offset) in VIEWS.items():
@@ -82,9 +83,20 @@ def main() -> None:
         tile = step.image.copy()
         tile[-170:-10, 10:330] = inset
         tiles.append(cv2.resize(tile, (480, 270), interpolation=cv2.INTER_AREA))
+        # a close-up around the object's base
+        from rgbd_envmap.geometry import project_points
+
+        T = packet.T_world_from_colour
+        pc = (np.linalg.inv(T.matrix) @ np.append(pipe.object_base + [0.0, 0.0, 0.05], 1.0))[:3]
+        (u, v), _ = project_points(pc[None], sim.calibration.colour)[0][0], None
+        r0 = int(np.clip(v - 90, 0, 540 - 180))
+        c0 = int(np.clip(u - 160, 0, 960 - 320))
+        closeups.append(cv2.resize(step.image[r0:r0 + 180, c0:c0 + 320], (480, 270), interpolation=cv2.INTER_CUBIC))
         print(f"{name}: object base {np.round(pipe.object_base, 3).tolist()}")
     sheet = np.concatenate([np.concatenate(tiles[:2], axis=1), np.concatenate(tiles[2:4], axis=1)], axis=0)
     cv2.imwrite(str(args.out / "gallery.png"), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
+    close = np.concatenate([np.concatenate(closeups[:2], axis=1), np.concatenate(closeups[2:4], axis=1)], axis=0)
+    cv2.imwrite(str(args.out / "closeups.png"), cv2.cvtColor(close, cv2.COLOR_RGB2BGR))
     pipe.close()
     print(f"wrote {args.out}")
 
