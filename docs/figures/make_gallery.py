@@ -77,7 +77,6 @@ def main() -> None:
         ns += 33_333_333
         packet = frame_at(sim, colour, look_at(np.asarray(eye), np.asarray(target)), t_s, ns)
         step = next(r for r in pipe.feed(packet) if isinstance(r, ColourStep))
-        cv2.imwrite(str(args.out / f"{name}.png"), cv2.cvtColor(step.image, cv2.COLOR_RGB2BGR))
         em = pipe._lighting_map()
         inset = cv2.resize(tonemap(np.ascontiguousarray(em.radiance), em.valid), (320, 160), interpolation=cv2.INTER_AREA)
         tile = step.image.copy()
