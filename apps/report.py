@@ -26,7 +26,7 @@ STAGE_ERRORS = {
     "Hole filling RGB-D": ["hole_filling_depth_mae_m", "hole_filling_depth_rmse_m", "hole_filling_depth_median_abs_m"],
     "Compute colour correction matrix": ["ccm_matrix_rel_error_median", "ccm_matrix_rel_error_p95"],
     "Project sample to EM*": ["em_coverage", "em_ws_psnr_db", "em_sphere_correlation", "em_depth_median_abs_m"],
-    "Calculate SH coefficients*": ["sh_coeff_rel_error", "irradiance_rel_error_mean"],
+    "Calculate SH coefficients*": ["sh_coeff_rel_error", "irradiance_rel_error_mean", "irradiance_rel_error_vs_true"],
     "Shade object (PRT)": ["shading_rel_rmse"],
 }
 

@@ -119,13 +119,13 @@ def _translation_rows(default: dict, truth: dict) -> list[dict]:
 #: the error shown for each axis (first found in the point's accuracy) and the stage whose time it trades.
 AXIS_METRIC = {
     "default": ("em_ws_psnr_db", None), "em_size": ("em_ws_psnr_db", "Project sample to EM*"),
-    "bands": ("irradiance_rel_error_mean", "Calculate SH coefficients*"),
+    "bands": ("irradiance_rel_error_vs_true", "Calculate SH coefficients*"),
     "hole_filling": ("em_coverage", "Hole filling RGB-D"),
     "ccm": ("em_ws_psnr_db", "Compute colour correction matrix"),
     "translation": ("translation_sphere_correlation", "EM translation"),
 }
 COLUMNS = ("em_coverage", "em_ws_psnr_db", "hole_filling_depth_mae_m", "ccm_matrix_rel_error_median",
-           "sh_coeff_rel_error", "irradiance_rel_error_mean", "translation_sphere_correlation", "translation_coverage")
+           "sh_coeff_rel_error", "irradiance_rel_error_mean", "irradiance_rel_error_vs_true", "translation_sphere_correlation", "translation_coverage")
 
 
 def _fmt(v) -> str:
