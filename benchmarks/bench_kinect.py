@@ -1,0 +1,155 @@
+"""Time the Kinect ingest path (paper 001 §4.2) per 640×480 frame: warp + merge + normals, by part and
+in total, beside OpenCV's and kornia's functions for the same jobs.
+
+    python benchmarks/bench_kinect.py [--repeats N] [--frames N] [--json PATH]
+
+Input: consecutive frames of the simulated Kinect (office scene, ``orbit_inward`` trajectory, 30 Hz).
+The merger is warmed up on them, then every row is timed on the steady state, cycling through the
+frames forwards and backwards so that each step warps between neighbouring poses.
+
+Rows ``KinectMerger.step`` are the per-frame cost (the speed target: ≤ 8 ms median on one thread);
+the part rows call the same kernels with the merger's workspace; "pure" rows call the public
+functions, which allocate their scratch on every call. Reference rows: ``cv2.warpFrame`` (a point
+forward warp: no triangles, so it leaves cracks), kornia ``warp_frame_depth`` (a *backward* warp that
+needs the destination depth, i.e. a different job, shown for scale), ``cv2.RgbdNormals`` (FALS and
+CROSS_PRODUCT) and kornia ``depth_to_normals``. Everything runs on one thread (numba kernels are
+serial; OpenCV and torch are set to one thread).
+
+Besides wall-clock median / p95 (``benchmarks.common.time_it``) each row reports the median *thread
+CPU time*, which other jobs on the shared 2-core box disturb much less.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from benchmarks.common import time_it  # noqa: E402
+from rgbd_envmap.ingest import kinect as K  # noqa: E402
+from rgbd_envmap.types import RigidTransform  # noqa: E402
+from sim.kinect import KinectSimulator  # noqa: E402
+from sim.scene import load_scene  # noqa: E402
+from sim.trajectory import load_trajectory  # noqa: E402
+
+
+def thread_ms(fn, repeats: int) -> float:
+    """Median thread CPU time of ``fn`` in ms (after one untimed call)."""
+    fn()
+    ts = []
+    for _ in range(repeats):
+        t0 = time.thread_time()
+        fn()
+        ts.append((time.thread_time() - t0) * 1e3)
+    return float(np.median(ts))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=60)
+    parser.add_argument("--frames", type=int, default=12, help="simulated frames to cycle through")
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    import torch
+
+    torch.set_num_threads(1)
+    import kornia
+
+    sim = KinectSimulator(load_scene("office"), load_trajectory("orbit_inward"), seed=0)
+    frames = list(sim.run(args.frames / sim.config.rate_hz))
+    intr = sim.config.intrinsics
+    order = list(range(len(frames))) + list(range(len(frames) - 2, 0, -1))  # ping-pong: neighbours only
+    cycle = iter(order * 10_000)
+
+    merger = K.KinectMerger(intr)
+    for f in frames:
+        merger.step(f.depth_m, f.known, f.T_world_from_cam)
+
+    def step():
+        f = frames[next(cycle)]
+        merger.step(f.depth_m, f.known, f.T_world_from_cam)
+
+    # a frozen state for the part rows: the merger after frame 1, warping into frame 2's view
+    m = K.KinectMerger(intr)
+    for f in frames[:2]:
+        m.step(f.depth_m, f.known, f.T_world_from_cam)
+    f2 = frames[2]
+    T = RigidTransform(f2.T_world_from_cam.inverse().matrix @ frames[1].T_world_from_cam.matrix)
+    ws, cfg, cam = m._ws, m.config, m._cam
+    rays, use_table, rx, ry, camv, dist, _, has_dist = cam
+    R, t = np.ascontiguousarray(T.rotation), np.ascontiguousarray(T.translation)
+    k2s, k2d = np.float32(m._k_side2), np.float32(m._k_diag2)
+
+    def raster():
+        ws.izbuf.fill(0.0)
+        K._raster_into(ws.V, ws.code, m._weight, ws.izbuf, ws.wbuf)
+        K._rim_flags_into(ws.code, ws.rim)
+        K._rim_splat(ws.V, ws.code, m._weight, ws.rim, ws.izbuf, ws.wbuf)
+
+    def merge():
+        near = K._window_min_into(f2.depth_m, f2.known, cfg.occlusion_radius_px, ws.near_tmp, ws.near_new)
+        return K._merge_zbuffer(ws.izbuf, ws.wbuf, f2.depth_m, f2.known, near, cfg.max_weight,
+                                cfg.threshold, cfg.threshold_abs_m)
+
+    P_next = np.zeros_like(ws.P[0])
+
+    def normals():
+        K._points_into(m._depth, rays, use_table, rx, ry, P_next)
+        return K._normals(P_next, k2s)
+
+    prev_depth, prev_known = m._depth, m._depth > 0
+    weight = np.ascontiguousarray(m._weight)
+    warped = K.warp_depth(prev_depth, weight, prev_known, intr, T)
+    Kt = torch.from_numpy(intr.K.astype(np.float32))[None]
+    T_prev_from_cur = torch.from_numpy(T.inverse().matrix.astype(np.float32))[None]
+    src_t = torch.from_numpy(prev_depth.astype(np.float32))[None, None]
+    dst_t = torch.from_numpy(warped[0])[None, None]
+    depth_t = torch.from_numpy(f2.depth_m)[None, None]
+    pts = cv2.depthTo3d(f2.depth_m, intr.K)
+    fals = cv2.RgbdNormals.create(intr.height, intr.width, cv2.CV_32F, intr.K, 5, 50.0,
+                                  cv2.RgbdNormals_RGBD_NORMALS_METHOD_FALS)
+    cross = cv2.RgbdNormals.create(intr.height, intr.width, cv2.CV_32F, intr.K, 5, 50.0,
+                                   cv2.RgbdNormals_RGBD_NORMALS_METHOD_CROSS_PRODUCT)
+    r = args.repeats
+    cases = {
+        "KinectMerger.step (warp + merge + normals)": step,
+        "  vertices (transform + project)": lambda: K._vertices_into(m._depth, rays, use_table, rx, ry, R, t, camv, dist,
+                                                                     has_dist, cfg.near_m, ws.V, ws.G),
+        "  quad codes (stretch test)": lambda: K._codes_into(m._P, ws.G, k2s, k2d, ws.code),
+        "  rasterise + z-buffer + rim splat": raster,
+        "  merge (occlusion window + average)": merge,
+        "  points + normals": normals,
+        "warp_depth (pure, allocates scratch)": lambda: K.warp_depth(prev_depth, weight, prev_known, intr, T),
+        "merge_depth (pure)": lambda: K.merge_depth(*warped, f2.depth_m, f2.known),
+        "normals_from_depth (pure)": lambda: K.normals_from_depth(f2.depth_m, f2.known, intr),
+        "ref: cv2.warpFrame (point warp, cracks)": lambda: cv2.warpFrame(prev_depth, None, None, T.matrix, intr.K),
+        "ref: kornia warp_frame_depth (backward)": lambda: kornia.geometry.depth.warp_frame_depth(
+            src_t, dst_t, T_prev_from_cur, Kt),
+        "ref: cv2.RgbdNormals FALS (+ depthTo3d)": lambda: fals.apply(cv2.depthTo3d(f2.depth_m, intr.K)),
+        "ref: cv2.RgbdNormals CROSS_PRODUCT": lambda: cross.apply(pts),
+        "ref: kornia depth_to_normals": lambda: kornia.geometry.depth.depth_to_normals(depth_t, Kt),
+    }
+    rows = {}
+    for name, fn in cases.items():
+        reps = r if not name.startswith("ref: kornia") else max(5, r // 6)
+        row = time_it(fn, reps, warmup=3)
+        row["cpu_median_ms"] = thread_ms(fn, reps)
+        rows[name] = row
+    width = max(len(k) for k in rows)
+    print(f"{'case (640x480, one thread)':<{width}}  {'median ms':>10}  {'p95 ms':>8}  {'cpu med ms':>10}  {'n':>4}")
+    for name, row in rows.items():
+        print(f"{name:<{width}}  {row['median_ms']:>10.2f}  {row['p95_ms']:>8.2f}  {row['cpu_median_ms']:>10.2f}  {row['n']:>4}")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
