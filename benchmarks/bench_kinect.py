@@ -88,6 +88,8 @@ def main() -> None:
     R, t = np.ascontiguousarray(T.rotation), np.ascontiguousarray(T.translation)
     k2s, k2d = np.float32(m._k_side2), np.float32(m._k_diag2)
 
+    P_next = np.zeros_like(ws.P[0])
+
     def raster():
         ws.izbuf.fill(0.0)
         K._raster_into(ws.V, ws.code, m._weight, ws.izbuf, ws.wbuf)
@@ -97,12 +99,9 @@ def main() -> None:
     def merge():
         near = K._window_min_into(f2.depth_m, f2.known, cfg.occlusion_radius_px, ws.near_tmp, ws.near_new)
         return K._merge_zbuffer(ws.izbuf, ws.wbuf, f2.depth_m, f2.known, near, cfg.max_weight,
-                                cfg.threshold, cfg.threshold_abs_m)
-
-    P_next = np.zeros_like(ws.P[0])
+                                cfg.threshold, cfg.threshold_abs_m, rays, use_table, rx, ry, P_next)
 
     def normals():
-        K._points_into(m._depth, rays, use_table, rx, ry, P_next)
         return K._normals(P_next, k2s)
 
     prev_depth, prev_known = m._depth, m._depth > 0
@@ -125,8 +124,8 @@ def main() -> None:
                                                                      has_dist, cfg.near_m, ws.V, ws.G),
         "  quad codes (stretch test)": lambda: K._codes_into(m._P, ws.G, k2s, k2d, ws.code),
         "  rasterise + z-buffer + rim splat": raster,
-        "  merge (occlusion window + average)": merge,
-        "  points + normals": normals,
+        "  merge (occlusion window + average + points)": merge,
+        "  normals": normals,
         "warp_depth (pure, allocates scratch)": lambda: K.warp_depth(prev_depth, weight, prev_known, intr, T),
         "merge_depth (pure)": lambda: K.merge_depth(*warped, f2.depth_m, f2.known),
         "normals_from_depth (pure)": lambda: K.normals_from_depth(f2.depth_m, f2.known, intr),

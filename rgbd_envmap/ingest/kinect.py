@@ -92,7 +92,7 @@ import numpy as np
 
 from rgbd_envmap.checks import check_array
 from rgbd_envmap.colour import srgb8_to_linear_lut
-from rgbd_envmap.errors import InvalidInputError, RangeError, ShapeError
+from rgbd_envmap.errors import InvalidInputError, RangeError
 from rgbd_envmap.geometry import pixel_rays
 from rgbd_envmap.types import Intrinsics, RGBDFrame, RigidTransform
 
@@ -192,7 +192,7 @@ def _check_merge_params(max_weight: float, threshold: float, threshold_abs_m: fl
 # costs page faults on every call (about 10 ms for 12 MB here), so it lives in a :class:`_Workspace`
 # that :class:`KinectMerger` keeps between frames.
 
-_NJ = dict(cache=True, error_model="numpy")
+_NJ = {"cache": True, "error_model": "numpy"}
 
 # Triangles of the quad with corners 00 = (v, u), 01 = (v, u+1), 10 = (v+1, u), 11 = (v+1, u+1):
 # bit 0: 00-01-10 and bit 1: 01-11-10 (split along 01–10); bit 2: 00-01-11 and bit 3: 00-11-10
@@ -470,7 +470,8 @@ def _rim_flags_into(code, rim):  # pragma: no cover - compiled
             c10 = code[v, u + 1]
             c11 = code[v, u]
             used = (c00 & _USES_00) | (c01 & _USES_01) | (c10 & _USES_10) | (c11 & _USES_11)
-            full = ((c00 == 3) | (c00 == 12)) & ((c01 == 3) | (c01 == 12)) & ((c10 == 3) | (c10 == 12)) & ((c11 == 3) | (c11 == 12))
+            full = (((c00 == 3) | (c00 == 12)) & ((c01 == 3) | (c01 == 12))
+                    & ((c10 == 3) | (c10 == 12)) & ((c11 == 3) | (c11 == 12)))
             row[u] = (used != 0) & (not full)
         for u in range(w):
             rim[v, u] = row[u]

@@ -101,11 +101,11 @@ def _pose(rotvec_deg=(0.0, 0.0, 0.0), t=(0.0, 0.0, 0.0)):
     return RigidTransform.from_rt(Rotation.from_rotvec(np.radians(rotvec_deg)).as_matrix(), np.asarray(t, float))
 
 
-BOX_SCENE = dict(
-    planes=[((0.0, 0.0, -1.0), -3.0)],  # wall z = 3
-    rects=[((0.0, 0.0, -1.0), -1.2, (-0.3, -0.25, 1.2), (0.3, 0.25, 1.2))],  # box face at z = 1.2
-)
-SPHERE_SCENE = dict(planes=[((0.0, 0.0, -1.0), -3.0)], spheres=[((0.1, 0.0, 1.6), 0.45)])
+BOX_SCENE = {
+    "planes": [((0.0, 0.0, -1.0), -3.0)],  # wall z = 3
+    "rects": [((0.0, 0.0, -1.0), -1.2, (-0.3, -0.25, 1.2), (0.3, 0.25, 1.2))],  # box face at z = 1.2
+}
+SPHERE_SCENE = {"planes": [((0.0, 0.0, -1.0), -3.0)], "spheres": [((0.1, 0.0, 1.6), 0.45)]}
 
 
 def _ones(shape=INTR.shape):
@@ -160,7 +160,7 @@ def test_translated_fronto_parallel_plane_warps_to_exact_depth(t):
     depth = np.full(INTR.shape, z0, np.float32)
     known = np.ones(INTR.shape, bool)
     T = RigidTransform.from_rt(np.eye(3), t)  # p_cur = p_prev + t
-    d, w, k = warp_depth(depth, _ones(), known, INTR, T)
+    d, _, k = warp_depth(depth, _ones(), known, INTR, T)
     z1 = z0 + t[2]
     np.testing.assert_allclose(d[k], z1, rtol=1e-7)
     # coverage: a current pixel is covered iff its point, moved back, projects inside the source grid
@@ -286,7 +286,7 @@ def test_merge_of_equal_values_is_exact_for_any_weight():
     d = rng.uniform(0.4, 8.0, (50, 60)).astype(np.float32)
     w = rng.uniform(0.0, 100.0, d.shape).astype(np.float32)
     k = np.ones(d.shape, bool)
-    out, wt, kn = merge_depth(d, w, k, d, k, max_weight=32.0)
+    out, wt, _ = merge_depth(d, w, k, d, k, max_weight=32.0)
     np.testing.assert_array_equal(out, d)
     np.testing.assert_array_equal(wt, np.minimum(np.minimum(w, 32.0) + 1.0, 32.0))
 
@@ -415,7 +415,7 @@ def test_normals_of_a_sphere_match_analytic_and_reference_normals():
 
 
 def test_normals_do_not_straddle_a_depth_edge():
-    depth, truth, valid = _render(INTR, RigidTransform.identity(), **BOX_SCENE)
+    depth, _, valid = _render(INTR, RigidTransform.identity(), **BOX_SCENE)
     n, ok = normals_from_depth(depth, valid, INTR)
     assert ok[valid].all()  # one-sided differences at the edge
     np.testing.assert_allclose(n[ok], np.broadcast_to([0.0, 0.0, -1.0], n[ok].shape), atol=1e-6)
