@@ -255,9 +255,10 @@ def test_shade_uses_the_smaller_band_count(blob_transfer):
                                rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(prt.shade(blob_transfer, L36, 1.0), blob_transfer @ L36[:25] / math.pi,
                                rtol=1e-4, atol=1e-5)
-    # Column slices and float64 transfers take the same path.
+    # Column slices and float64 transfers take the same path (up to float32 summation order: the
+    # kernel vectorises a contiguous row and a strided slice differently).
     np.testing.assert_allclose(prt.shade(blob_transfer[:, :9], L36, 1.0), prt.shade(blob_transfer, L36[:9], 1.0),
-                               rtol=1e-6)
+                               rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(prt.shade(blob_transfer.astype(np.float64), L9, 1.0),
                                prt.shade(blob_transfer, L9, 1.0), rtol=1e-6)
 
