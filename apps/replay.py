@@ -91,8 +91,6 @@ def run_replay_tum(opts: ReplayOptions) -> dict:
         raise LogFormatError(f"{opts.log}: no frame has rgb, depth and a pose within the association window (skipped: {seq.skipped})")
     skipped: Counter = Counter({f"association_{k}": v for k, v in seq.skipped.items() if v})
     skipped_files: list[str] = []
-    first = None
-    frames = []
 
     def load(i: int):
         try:
@@ -106,10 +104,18 @@ def run_replay_tum(opts: ReplayOptions) -> dict:
 
     if opts.origin is not None:
         origin = _check_origin(opts.origin)
-    else:
-        first = next(f for f in (load(i) for i in range(len(seq))) if f is not None)
-        T = first.T_world_from_cam
-        origin = T.translation + T.rotation[:, 2]  # 1 m along the first camera's optical axis
+    else:  # 1 m along the first readable frame's optical axis (unreadable ones are counted in the run)
+        T = None
+        for i in range(len(seq)):
+            try:
+                T = seq.load(i).T_world_from_cam
+                break
+            except LogFormatError:
+                if opts.strict:
+                    raise
+        if T is None:
+            raise LogFormatError(f"{opts.log}: no frame of the sequence could be read")
+        origin = T.translation + T.rotation[:, 2]
     gt_path = Path(opts.log) / "groundtruth" / "envmap.npz"
 
     def groundtruth_envmap():
