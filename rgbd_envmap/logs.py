@@ -42,7 +42,7 @@ import numpy as np
 from rgbd_envmap.errors import InvalidInputError, LogFormatError, RgbdEnvmapError, ShapeError
 from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, RigidTransform
 
-__all__ = ["SessionWriter", "SessionLog", "as_logged", "format_timestamp", "parse_timestamp", "QUATERNION_NORM_TOL"]
+__all__ = ["SessionWriter", "SessionLog", "as_logged", "read_timestamped_table", "format_timestamp", "parse_timestamp", "QUATERNION_NORM_TOL"]
 
 FORMAT, VERSION = "rgbd-envmap-session", 1
 KINDS = ("depth", "colour")
@@ -73,15 +73,17 @@ def parse_timestamp(text: str) -> int:
     return ns
 
 
-def _read_table(path: Path, n_fields: int) -> list[tuple[int, int, list[str]]]:
-    """(line number, timestamp_ns, other fields) per data line; timestamps must strictly increase."""
+def read_timestamped_table(path: Path, n_fields: int) -> list[tuple[int, int, list[str]]]:
+    """(line number, timestamp_ns, other fields) per data line of a whitespace-separated text file whose
+    first field is a timestamp in seconds (TUM RGB-D style: ``#`` comments, up to 9 decimals);
+    timestamps must strictly increase. Errors name the file and line."""
     rows: list[tuple[int, int, list[str]]] = []
     for lineno, line in enumerate(_read_bytes(path).decode("utf-8", "replace").splitlines(), start=1):
         fields = line.split()
         if not fields or fields[0].startswith("#"):
             continue
         if len(fields) != n_fields:
-            raise LogFormatError(f"{path}, line {lineno}: expected {n_fields} fields, got {len(fields)}")
+            raise LogFormatError(f"{path}, line {lineno}: expected {n_fields} fields, got {len(fields)}: {line.strip()!r}")
         try:
             ns = parse_timestamp(fields[0])
         except ValueError as exc:
@@ -96,7 +98,7 @@ def _read_table(path: Path, n_fields: int) -> list[tuple[int, int, list[str]]]:
 def _read_poses(path: Path, kind: str) -> dict[int, RigidTransform]:
     """TUM trajectory file -> {timestamp_ns: T_world_from_<kind>}."""
     poses = {}
-    for lineno, ns, fields in _read_table(path, 8):
+    for lineno, ns, fields in read_timestamped_table(path, 8):
         where = f"{path}, line {lineno}"
         try:
             v = np.array([float(f) for f in fields])
@@ -305,7 +307,7 @@ class SessionLog:
         entries = {}
         for kind in KINDS:
             poses, index, entries[kind] = _read_poses(root / f"{kind}_poses.txt", kind), root / f"{kind}.txt", []
-            for lineno, ns, (rel,) in _read_table(index, 2):
+            for lineno, ns, (rel,) in read_timestamped_table(index, 2):
                 if ns not in poses:
                     raise LogFormatError(f"{index}, line {lineno}: no pose for {format_timestamp(ns)} in {kind}_poses.txt")
                 entries[kind].append((ns, rel, poses[ns]))

@@ -63,7 +63,7 @@ from rgbd_envmap.errors import (
     RangeError,
     RgbdEnvmapError,
 )
-from rgbd_envmap.logs import QUATERNION_NORM_TOL, parse_timestamp
+from rgbd_envmap.logs import QUATERNION_NORM_TOL, read_timestamped_table
 from rgbd_envmap.types import Calibration, Intrinsics, RigidTransform
 
 __all__ = [
@@ -227,30 +227,10 @@ def _read_png(path: Path, where: str) -> np.ndarray:
     return img
 
 
-def _read_table(path: Path, n_fields: int) -> list[tuple[int, int, list[str]]]:
-    """(line number, timestamp_ns, remaining fields) per data line; timestamps must strictly increase."""
-    rows: list[tuple[int, int, list[str]]] = []
-    for lineno, line in enumerate(_read_bytes(path).decode("utf-8", "replace").splitlines(), start=1):
-        fields = line.split()
-        if not fields or fields[0].startswith("#"):
-            continue
-        if len(fields) != n_fields:
-            raise LogFormatError(f"{path}, line {lineno}: expected {n_fields} fields, got {len(fields)}: {line.strip()!r}")
-        try:
-            ns = parse_timestamp(fields[0])
-        except ValueError as exc:
-            raise LogFormatError(f"{path}, line {lineno}: {exc}") from None
-        if rows and ns <= rows[-1][1]:
-            raise LogFormatError(f"{path}, line {lineno}: timestamp {fields[0]} does not increase "
-                                 f"(previous line {rows[-1][0]}; unsorted or duplicate)")
-        rows.append((lineno, ns, fields[1:]))
-    return rows
-
-
 def _read_images(root: Path, name: str) -> list[tuple[int, int, Path]]:
     path = root / name
     out = []
-    for lineno, ns, (rel,) in _read_table(path, 2):
+    for lineno, ns, (rel,) in read_timestamped_table(path, 2):
         if Path(rel).is_absolute() or ".." in Path(rel).parts:
             raise LogFormatError(f"{path}, line {lineno}: image path must be relative to the sequence, got {rel!r}")
         out.append((lineno, ns, root / rel))
@@ -260,7 +240,7 @@ def _read_images(root: Path, name: str) -> list[tuple[int, int, Path]]:
 def _read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N,) int64 timestamps, (N, 3) translations, (N, 4) unit quaternions xyzw of groundtruth.txt."""
     stamps, values = [], []
-    for lineno, ns, fields in _read_table(path, 8):
+    for lineno, ns, fields in read_timestamped_table(path, 8):
         where = f"{path}, line {lineno}"
         try:
             v = np.array([float(f) for f in fields])
