@@ -69,6 +69,7 @@ from rgbd_envmap.types import Intrinsics, RigidTransform
 
 __all__ = [
     "EnvironmentMap",
+    "MapChanges",
     "UpdateConfig",
     "UpdateStats",
     "collect_pairs",
@@ -105,6 +106,7 @@ class EnvironmentMap:
         self.depth_m = np.zeros((self.height, self.width), np.float32)
         self.valid = np.zeros((self.height, self.width), bool)
         self._scratch: tuple[np.ndarray, ...] | None = None
+        self._changes: _ChangeLog | None = None
 
     def _update_scratch(self) -> tuple[np.ndarray, ...]:
         """The (H, W) int64 z-buffer of :func:`update` (float32 distance bits above the winning
@@ -127,6 +129,7 @@ class EnvironmentMap:
         em.depth_m = np.empty((em.height, em.width), np.float32)
         em.valid = np.empty((em.height, em.width), bool)
         em._scratch = None
+        em._changes = None
         return em
 
     @property
@@ -146,11 +149,77 @@ class EnvironmentMap:
         em.valid[:] = ok
         return em
 
+    def record_changes(self) -> None:
+        """Start (or restart) logging the pixels :func:`update` writes, for consumers that keep
+        derived state in sync incrementally (:class:`rgbd_envmap.sh.IncrementalProjection`). Each
+        taken pixel is logged with its flat index, its colour and ``valid`` flag before the write.
+        The log costs a few stores per taken pixel; a map that is not recording pays nothing."""
+        self._changes = _ChangeLog()
+
+    def take_changes(self) -> "MapChanges | None":
+        """The pixels written since :meth:`record_changes` or the last call, and a fresh log; None
+        when the map is not recording. ``complete`` is False when the log cannot describe what
+        happened (it overflowed, or :meth:`mark_modified` was called): rebuild derived state."""
+        log = self._changes
+        if log is None:
+            return None
+        self._changes = _ChangeLog(log.capacity if log.n <= log.capacity else min(4 * log.n, self.height * self.width))
+        n = min(log.n, log.capacity)
+        idx, old, was_valid = log.idx[:n], log.old[:n], log.was_valid[:n]
+        if log.updates > 1:  # a pixel taken by several updates: its state before the first one
+            _, first = np.unique(idx, return_index=True)
+            first.sort()
+            idx, old, was_valid = idx[first], old[first], was_valid[first]
+        return MapChanges(idx, old, was_valid, log.complete and log.n <= log.capacity, log.updates)
+
+    def mark_modified(self) -> None:
+        """Say that the arrays were written other than by :func:`update` (the change log, if any,
+        can no longer describe the map's history)."""
+        if self._changes is not None:
+            self._changes.complete = False
+
     def copy(self) -> "EnvironmentMap":
         return EnvironmentMap.from_arrays(self.radiance, self.depth_m, self.valid, self.origin)
 
     def __repr__(self) -> str:
         return f"EnvironmentMap({self.height}×{self.width}, origin={self.origin.tolist()}, valid={self.valid.mean():.3f})"
+
+
+@dataclass(frozen=True, eq=False)
+class MapChanges:
+    """Pixels written by :func:`update` since the last :meth:`EnvironmentMap.take_changes`, each once
+    (the first write when several updates took it), with their state before that write.
+
+    Attributes:
+        index: (n,) int64 flat pixel index v·W + u.
+        old_radiance: (n, 3) float32 colour before the write (meaningless where not ``was_valid``).
+        was_valid: (n,) bool, the pixel had data before the write.
+        complete: False when pixels were written that are not listed (log overflow,
+            :meth:`EnvironmentMap.mark_modified`).
+        updates: calls of :func:`update` the log covers.
+    """
+
+    index: np.ndarray
+    old_radiance: np.ndarray
+    was_valid: np.ndarray
+    complete: bool
+    updates: int
+
+
+class _ChangeLog:
+    """Growable buffers the update kernel appends to (``n`` counts past ``capacity`` on overflow)."""
+
+    def __init__(self, capacity: int = 1 << 16) -> None:
+        self.capacity = int(capacity)
+        self.idx = np.empty(self.capacity, np.int64)
+        self.old = np.empty((self.capacity, 3), np.float32)
+        self.was_valid = np.empty(self.capacity, bool)
+        self.n = 0
+        self.updates = 0
+        self.complete = True
+
+
+_NO_LOG = _ChangeLog(0)  # passed to the kernel when the map is not recording
 
 
 # --- the update rules, one function each (numba-compiled, callable from Python on scalars) ----------
@@ -290,10 +359,13 @@ def _block_footprints(m, qx, qy, qz, device, bx, by, bv, bu, br, height, width, 
 def _update_kernel(
     points, colours, fill_only, origin, device, height, width, focal_px, splat, splat_scale, max_splat,
     planes, depth, valid, trusted_r, removal_r, zw, row_lo, row_hi, row_sc, col_sc,
+    log_idx, log_old, log_valid, log_n,
 ):  # pragma: no cover - compiled
     """:func:`update`: the frame's samples, in order, z-buffered into ``zw`` (a sample takes a pixel
     when its distance is below the stored float32 distance), then the rules per touched pixel.
-    Returns (pixels touched, counts taken: all, empty, closer, trusted, removal)."""
+    Every taken pixel is appended to the change log (``log_*``, entries from ``log_n`` on, while
+    they fit; a zero-length log records nothing).
+    Returns (pixels touched, counts taken: all, empty, closer, trusted, removal, new log length)."""
     n = points.shape[0]
     rows_lo, rows_hi = height, -1
     row_px = height / math.pi
@@ -411,11 +483,18 @@ def _update_kernel(
                     counts[4] += 1
             if take:
                 counts[0] += 1
+                if log_n < log_idx.shape[0]:
+                    log_idx[log_n] = rr * width + cc
+                    for c in range(3):
+                        log_old[log_n, c] = planes[c, rr, cc]
+                    log_valid[log_n] = valid[rr, cc]
+                if log_idx.shape[0] > 0:
+                    log_n += 1
                 for c in range(3):
                     planes[c, rr, cc] = colours[i, c]
                 depth[rr, cc] = r if not valid[rr, cc] else 0.5 * (depth[rr, cc] + r)
                 valid[rr, cc] = True
-    return n_touched, counts
+    return n_touched, counts, log_n
 
 
 @lru_cache(maxsize=8)
@@ -472,13 +551,17 @@ def update(
     zw, row_lo, row_hi = em._update_scratch()
     pts = np.ascontiguousarray(pts)
     flags = np.zeros(len(pts), bool) if fill_only is None else check_array(fill_only, "fill_only", shape=(len(pts),), dtype="bool")
-    n_touched, counts = _update_kernel(
+    log = _NO_LOG if em._changes is None else em._changes
+    n_touched, counts, n_logged = _update_kernel(
         pts, np.ascontiguousarray(col), np.ascontiguousarray(flags), em.origin, dev, em.height, em.width,
         float(focal_px), bool(config.splat), float(config.splat_scale), int(config.max_splat_px),
         em.radiance_planes, em.depth_m, em.valid,
         float(config.trusted_radius_m), float(config.removal_radius_m), zw, row_lo, row_hi,
-        *_trig_tables(em.height, em.width),
+        *_trig_tables(em.height, em.width), log.idx, log.old, log.was_valid, log.n,
     )
+    if log is not _NO_LOG:
+        log.n = int(n_logged)
+        log.updates += 1
     return UpdateStats(len(pts), int(n_touched), *(int(c) for c in counts))
 
 

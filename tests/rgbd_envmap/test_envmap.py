@@ -532,3 +532,56 @@ def test_translate_kernel_on_tiny_and_empty_maps():
             np.testing.assert_array_equal(got.radiance_planes, ref.radiance_planes)
     out = translate(EnvironmentMap(H, W), np.array([0.1, 0.0, 0.0]))
     assert not out.valid.any() and not out.depth_m.any() and not out.radiance_planes.any()
+
+
+def _random_frame(rng, n=400, spread=1.0):
+    pts = rng.normal(size=(n, 3)) * spread
+    return pts, rng.random((n, 3)).astype(np.float32)
+
+
+def test_change_log_lists_exactly_the_written_pixels_with_their_old_state():
+    rng = np.random.default_rng(3)
+    em = EnvironmentMap(H, W)
+    assert em.take_changes() is None  # not recording
+    update(em, *_random_frame(rng), np.array([0.0, 0.0, 2.0]), FOCAL)
+    em.record_changes()
+    before = (em.radiance_planes.copy(), em.depth_m.copy(), em.valid.copy())
+    stats = update(em, *_random_frame(rng), np.array([0.0, 0.0, 2.0]), FOCAL)
+    ch = em.take_changes()
+    assert ch.complete and ch.updates == 1 and len(ch.index) == stats.taken > 0
+    changed = (em.depth_m != before[1]) | (em.valid != before[2]) | (em.radiance_planes != before[0]).any(0)
+    assert set(np.flatnonzero(changed)) <= set(ch.index.tolist())  # every changed pixel is listed
+    assert len(np.unique(ch.index)) == len(ch.index)
+    np.testing.assert_array_equal(ch.was_valid, before[2].ravel()[ch.index])
+    old = before[0].reshape(3, -1)[:, ch.index].T
+    np.testing.assert_array_equal(ch.old_radiance[ch.was_valid], old[ch.was_valid])
+    again = em.take_changes()  # the log restarts empty
+    assert again.complete and len(again.index) == 0 and again.updates == 0
+
+
+def test_change_log_over_several_updates_keeps_each_pixel_once_with_its_first_old_state():
+    rng = np.random.default_rng(4)
+    em = EnvironmentMap(H, W)
+    em.record_changes()
+    before = (em.radiance_planes.copy(), em.valid.copy())
+    for _ in range(3):
+        update(em, *_random_frame(rng), np.array([0.0, 0.0, 0.05]), FOCAL)  # trusted sphere: rewrites
+    ch = em.take_changes()
+    assert ch.updates == 3 and ch.complete and len(np.unique(ch.index)) == len(ch.index)
+    assert not ch.was_valid.any()  # all were empty before the first update
+    assert set(ch.index.tolist()) == set(np.flatnonzero(em.valid & ~before[1]).tolist())
+
+
+def test_change_log_overflow_and_mark_modified_say_incomplete():
+    rng = np.random.default_rng(5)
+    em = EnvironmentMap(H, W)
+    em.record_changes()
+    em._changes = type(em._changes)(8)  # a tiny log
+    stats = update(em, *_random_frame(rng), np.zeros(3) + 2.0, FOCAL)
+    ch = em.take_changes()
+    assert stats.taken > 8 and not ch.complete and len(ch.index) == 8
+    update(em, *_random_frame(rng), np.zeros(3) + 2.0, FOCAL)  # the log grew to fit
+    assert em.take_changes().complete
+    em.mark_modified()
+    assert not em.take_changes().complete
+    assert translate(em, np.zeros(3)).take_changes() is None  # a new map does not record
