@@ -107,6 +107,7 @@ class EnvironmentMap:
         self.valid = np.zeros((self.height, self.width), bool)
         self._scratch: tuple[np.ndarray, ...] | None = None
         self._changes: _ChangeLog | None = None
+        self._spare_changes: _ChangeLog | None = None
 
     def _update_scratch(self) -> tuple[np.ndarray, ...]:
         """The (H, W) int64 z-buffer of :func:`update` (float32 distance bits above the winning
@@ -130,6 +131,7 @@ class EnvironmentMap:
         em.valid = np.empty((em.height, em.width), bool)
         em._scratch = None
         em._changes = None
+        em._spare_changes = None
         return em
 
     @property
@@ -154,22 +156,29 @@ class EnvironmentMap:
         derived state in sync incrementally (:class:`rgbd_envmap.sh.IncrementalProjection`). Each
         taken pixel is logged with its flat index, its colour and ``valid`` flag before the write.
         The log costs a few stores per taken pixel; a map that is not recording pays nothing."""
-        self._changes = _ChangeLog()
+        self._changes = _ChangeLog(_ChangeLog.DEFAULT_CAPACITY if self._changes is None else self._changes.capacity)
 
     def take_changes(self) -> "MapChanges | None":
         """The pixels written since :meth:`record_changes` or the last call, and a fresh log; None
         when the map is not recording. ``complete`` is False when the log cannot describe what
-        happened (it overflowed, or :meth:`mark_modified` was called): rebuild derived state."""
+        happened (it overflowed, or :meth:`mark_modified` was called): rebuild derived state.
+        The arrays are views into the map's log buffers (two, used in turn: fresh pages cost page
+        faults in the update), valid until the next call."""
         log = self._changes
         if log is None:
             return None
-        self._changes = _ChangeLog(log.capacity if log.n <= log.capacity else min(4 * log.n, self.height * self.width))
+        spare = self._spare_changes
+        if log.n > log.capacity:
+            spare = _ChangeLog(min(4 * log.n, self.height * self.width))
+        elif spare is None or spare.capacity < log.capacity:
+            spare = _ChangeLog(log.capacity)
+        spare.n, spare.updates, spare.complete = 0, 0, True
+        self._changes, self._spare_changes = spare, log
         n = min(log.n, log.capacity)
         idx, old, was_valid = log.idx[:n], log.old[:n], log.was_valid[:n]
         if log.updates > 1:  # a pixel taken by several updates: its state before the first one
-            _, first = np.unique(idx, return_index=True)
-            first.sort()
-            idx, old, was_valid = idx[first], old[first], was_valid[first]
+            idx, first = np.unique(idx, return_index=True)  # raster order, as one update logs
+            old, was_valid = old[first], was_valid[first]
         return MapChanges(idx, old, was_valid, log.complete and log.n <= log.capacity, log.updates)
 
     def mark_modified(self) -> None:
@@ -191,7 +200,7 @@ class MapChanges:
     (the first write when several updates took it), with their state before that write.
 
     Attributes:
-        index: (n,) int64 flat pixel index v·W + u.
+        index: (n,) int64 flat pixel index v·W + u, increasing.
         old_radiance: (n, 3) float32 colour before the write (meaningless where not ``was_valid``).
         was_valid: (n,) bool, the pixel had data before the write.
         complete: False when pixels were written that are not listed (log overflow,
@@ -209,7 +218,9 @@ class MapChanges:
 class _ChangeLog:
     """Growable buffers the update kernel appends to (``n`` counts past ``capacity`` on overflow)."""
 
-    def __init__(self, capacity: int = 1 << 16) -> None:
+    DEFAULT_CAPACITY = 1 << 16
+
+    def __init__(self, capacity: int = DEFAULT_CAPACITY) -> None:
         self.capacity = int(capacity)
         self.idx = np.empty(self.capacity, np.int64)
         self.old = np.empty((self.capacity, 3), np.float32)

@@ -195,6 +195,8 @@ class Pipeline:
         self.sh_bands_computed = max_bands
         self.bands = config.shading.bands
         self.coeffs = np.zeros((max_bands * max_bands, 3))
+        # Follows the map's updates: after the first frame only the written pixels are projected.
+        self._projection = sh.IncrementalProjection(max_bands)
         self.has_lighting = False
         self.object_offset = np.zeros(3)
         self._pending_depth: DepthPacket | None = None
@@ -384,7 +386,7 @@ class Pipeline:
         if not em.valid.any():
             return
         with self.timer.stage("Calculate SH coefficients*"):
-            self.coeffs = sh.project_equirect(em.radiance, em.valid, self.sh_bands_computed)
+            self.coeffs = self._projection.coefficients(em)
         self.has_lighting = True
         sc = self.config.shading
         if sc.auto_bands and self._transfer is not None:

@@ -816,3 +816,94 @@ def test_select_bands_bad_input():
     with pytest.raises(InvalidInputError):
         sh.select_bands(L, sh.transfer_gram(T), weights=np.ones(20))
     assert issubclass(InvalidInputError, RgbdEnvmapError)
+
+
+# --- incremental projection --------------------------------------------------------------------------
+
+def _fresh_state(valid, radius):
+    """The fill state a fresh plan gives: (src, key) per pixel, −2 / 0 at data pixels."""
+    H, W = valid.shape
+    row_ptr, col, src, _, key = sh._plan(valid, radius)
+    s = np.full(H * W, -2, np.int64)
+    k = np.zeros(H * W, np.int64)
+    rows = np.repeat(np.arange(H), np.diff(row_ptr))
+    s[rows * W + col] = np.where(src >= 0, src, -1)
+    k[rows * W + col] = key
+    return s, k
+
+
+def _capture_frames(em, rng, n_frames, trusted_every=0):
+    """Random frames through envmap.update: clusters of points (some straight up / down for the
+    poles, some across the seam), devices far from and (every ``trusted_every``) at the origin."""
+    from rgbd_envmap.envmap import update
+
+    for i in range(n_frames):
+        n = int(rng.integers(1, 400))
+        centre = rng.normal(size=3)
+        if i % 7 == 3:
+            centre = np.array([0.0, 0.0, rng.choice([-1.0, 1.0])])  # a pole
+        if i % 7 == 5:
+            centre = np.array([-1.0, 0.0, 0.0])  # the seam (φ = ±π)
+        pts = 2.0 * centre + rng.normal(size=(n, 3)) * rng.uniform(0.05, 0.6)
+        near = trusted_every and i % trusted_every == trusted_every - 1
+        dev = rng.normal(size=3) * (0.02 if near else 1.0)
+        update(em, pts, rng.random((n, 3)).astype(np.float32), dev, float(rng.uniform(20, 200)))
+        yield i
+
+
+@pytest.mark.parametrize("shape,radius,bands", [((40, 80), 50, 5), ((50, 100), 7, 3), ((16, 8), 50, 2),
+                                                ((120, 240), 50, 8), ((30, 60), 1, 1)])
+def test_incremental_projection_follows_updates_exactly(shape, radius, bands):
+    """After every update the coefficients equal a full projection, and the fill state equals the
+    state a fresh plan gives (source and rank of every missing pixel), so errors cannot accumulate."""
+    from rgbd_envmap.envmap import EnvironmentMap
+
+    rng = np.random.default_rng(sum(shape) + radius + bands)
+    em = EnvironmentMap(*shape)
+    proj = sh.IncrementalProjection(bands, fill_radius_px=radius)
+    for _ in _capture_frames(em, rng, 25, trusted_every=9):
+        c = proj.coefficients(em)
+        ref = sh.project_planar(em.radiance_planes, em.valid, bands, fill_radius_px=radius)
+        assert np.abs(c - ref).max() <= 1e-6 * max(np.abs(ref).max(), 1e-30)
+        src, key = _fresh_state(em.valid, radius)
+        np.testing.assert_array_equal(proj._src, src)
+        np.testing.assert_array_equal(proj._key, key)
+    assert proj.incremental_updates > 10  # the incremental path ran, not only rebuilds
+
+
+def test_incremental_projection_rebuilds_when_the_log_cannot_tell():
+    from rgbd_envmap.envmap import EnvironmentMap, translate
+
+    rng = np.random.default_rng(1)
+    em = EnvironmentMap(40, 80)
+    proj = sh.IncrementalProjection(3)
+    np.testing.assert_array_equal(proj.coefficients(em), np.zeros((9, 3)))  # empty map
+    next(_capture_frames(em, rng, 1))
+    proj.coefficients(em)
+    assert (proj.full_projections, proj.incremental_updates) == (1, 1)
+    em.radiance_planes[:, 10, 10] = 5.0  # a direct write, announced
+    em.valid[10, 10] = True
+    em.mark_modified()
+    c = proj.coefficients(em)
+    assert proj.full_projections == 2
+    np.testing.assert_allclose(c, sh.project_planar(em.radiance_planes, em.valid, 3), rtol=1e-6, atol=1e-12)
+    moved = translate(em, np.array([0.05, 0.0, 0.0]))  # another map object
+    c = proj.coefficients(moved)
+    assert proj.full_projections == 3
+    np.testing.assert_allclose(c, sh.project_planar(moved.radiance_planes, moved.valid, 3), rtol=1e-6, atol=1e-12)
+    c = proj.coefficients(em)  # back to the first map: its log was not followed meanwhile
+    assert proj.full_projections == 4
+    c[:] = 0  # a copy: the tracker's state is untouched
+    assert proj.coefficients(em).any()
+
+
+def test_incremental_projection_of_non_finite_data_raises():
+    from rgbd_envmap.envmap import EnvironmentMap
+
+    rad = np.ones((20, 40, 3), np.float32)
+    rad[3, 4, 1] = np.nan
+    em = EnvironmentMap.from_arrays(rad, np.ones((20, 40)), np.ones((20, 40), bool), np.zeros(3))
+    with pytest.raises(NonFiniteError):
+        sh.IncrementalProjection(2).coefficients(em)
+    with pytest.raises(RangeError):
+        sh.IncrementalProjection(0)
