@@ -1,12 +1,14 @@
 """Time hole filling (paper 003 §4.2, eq. 1, and the two baselines) on a 224×172 ToF-sized frame.
 
-    python benchmarks/bench_holes.py [--repeats N] [--json PATH]
+    python benchmarks/bench_holes.py [--repeats N] [--session DIR] [--json PATH]
 
 Two masks with 30 % of the pixels unknown: i.i.d. random pixels, and a few large discs ("blobs",
 the shape emitters and screens leave). Numba and OpenCV are both held to one thread. Beside the
 library's methods it times ``numpy eq1``: eq. (1) written with whole-array numpy operations (running
 maxima of source indices along each direction, diagonals sheared into columns), to show what the numba
-kernel buys. Its results are checked against the library before timing.
+kernel buys. Its results are checked against the library before timing. Session rows: the RGB-D
+frames of eight depth frames of the recorded default session (``runs/default/session``, skipped when
+absent; bench_ingest.session_frames), cycled.
 """
 
 from __future__ import annotations
@@ -22,8 +24,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from benchmarks.bench_ingest import DEFAULT_SESSION, cycling, session_frames  # noqa: E402
 from benchmarks.common import print_table, time_it  # noqa: E402
-
 from rgbd_envmap.depth import FILL_METHODS, fill_holes  # noqa: E402
 
 H, W = 172, 224
@@ -98,6 +100,7 @@ def numpy_eq1(depth: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndar
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=100, help="timed runs per case (≥ 50 recommended)")
+    parser.add_argument("--session", type=Path, default=DEFAULT_SESSION, help="a recorded session (rgbd-envmap simulate)")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
 
@@ -120,6 +123,14 @@ def main() -> None:
                                                                     args.repeats, warmup=3)
         rows[f"numpy eq1 {mask_name} {hole_pct:.0f}%"] = time_it(lambda: numpy_eq1(holed, known),
                                                                args.repeats, warmup=3)
+    frames = session_frames(args.session)
+    if frames is None:
+        print(f"no session at {args.session}: session rows skipped (rgbd-envmap simulate writes one)")
+    else:
+        unknown = 100 * (1 - np.mean([f.frame.known.mean() for f in frames]))
+        for method in FILL_METHODS:
+            rows[f"{method} session frames ({unknown:.1f} % unknown)"] = time_it(
+                cycling(frames, lambda f, m=method: fill_holes(f.frame.depth_m, f.frame.known, m)), args.repeats, warmup=3)
     print(f"fill_holes on {W}x{H}, numba threads = {numba.get_num_threads()}, cv2 threads = {cv2.getNumThreads()}")
     print_table(rows)
     if args.json:

@@ -1,7 +1,7 @@
 """Time the PRT stage (paper 003 §7.1, DESIGN.md §4 stage 9): per-frame shading and shadow alpha, and
 the one-off costs (object load, transfer precompute, shadow plane, cache hits).
 
-    python benchmarks/bench_prt.py [--repeats N] [--precompute-repeats N] [--object bunny] [--json PATH]
+    python benchmarks/bench_prt.py [--repeats N] [--precompute-repeats N] [--object bunny] [--session-map NPZ] [--json PATH]
 
 Per frame (the issue's target: ``shade`` ≤ 0.5 ms median for 35k vertices × 25 coefficients):
 ``prt.shade`` of the object at 3, 5 and 8 bands, of 35,000 rows × 25 (float32, C-contiguous), of a
@@ -9,6 +9,11 @@ column slice ``transfer[:, :9]``, and ``prt.shadow_alpha`` of a 48×48 plane. On
 object load, ``compute_transfer`` of the whole object (1024 directions, 5 bands), ``shadow_plane``
 (48×48 on 0.5 m), and ``load_or_compute`` hitting the cache. BLAS and numba are held to one thread;
 open3d's ray casting uses every core (two here).
+
+Session rows: the pipeline's "Shade object (PRT)" stage as ``Pipeline._shade`` runs it (``shade`` of the
+5-band transfer into a reused buffer, then ``shadow_alpha`` of the 48×48 plane), with the 5-band SH
+coefficients of the map captured by the default session (``runs/default/envmap.npz``, written by
+``rgbd-envmap simulate``; random coefficients when absent).
 """
 
 from __future__ import annotations
@@ -29,9 +34,35 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import print_table, time_it
-from rgbd_envmap import assets, prt
+from rgbd_envmap import assets, prt, sh
+
+DEFAULT_SESSION_MAP = Path(__file__).resolve().parent.parent / "runs" / "default" / "envmap.npz"
 
 N_DIRS = 1024
+
+
+def session_rows(T5: np.ndarray, obj, plane, session_map: Path, repeats: int) -> dict[str, dict]:
+    """The pipeline's shading stage with the default session's lighting (see the module docstring)."""
+    if session_map.is_file():
+        with np.load(session_map) as npz:
+            L = sh.project_equirect(np.where(npz["valid"][..., None], npz["radiance"], 0), bands=5)
+        source = "session SH"
+    else:
+        L = np.random.default_rng(1).normal(size=(25, 3))
+        source = "random SH: no session map"
+    buffers = [np.empty((len(T5), 3), np.float32) for _ in range(2)]
+    state = {"i": 0}
+
+    def stage():  # Pipeline._shade: two output buffers swapped per call, then the plane's alpha
+        state["i"] ^= 1
+        prt.shade(T5, L, obj.albedo, out=buffers[state["i"]])
+        prt.shadow_alpha(plane, L)
+
+    return {
+        f"session: 'Shade object (PRT)' {len(T5)} x 25 + alpha ({source})": time_it(stage, repeats),
+        f"session:   shade {len(T5)} x 25, out=": time_it(lambda: prt.shade(T5, L, obj.albedo, out=buffers[0]), repeats),
+        "session:   shadow_alpha 48x48": time_it(lambda: prt.shadow_alpha(plane, L), repeats),
+    }
 
 
 def main() -> None:
@@ -39,6 +70,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=300)
     parser.add_argument("--precompute-repeats", type=int, default=3)
     parser.add_argument("--object", default="bunny", choices=assets.OBJECT_NAMES)
+    parser.add_argument("--session-map", type=Path, default=DEFAULT_SESSION_MAP,
+                        help="the captured map of a session (its radiance and valid mask) for the session rows")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
 
@@ -63,6 +96,7 @@ def main() -> None:
             f"shade {V} x 64 transfer, 9 coeffs (column slice)": time_it(
                 lambda: prt.shade(T8, coeffs[:9], obj.albedo), r),
             "shadow_alpha 48x48 plane, 25 coeffs": time_it(lambda: prt.shadow_alpha(plane, coeffs[:25]), r),
+            **session_rows(T5, obj, plane, args.session_map, r),
             "load_virtual_object (cached mesh)": time_it(lambda: assets.load_virtual_object(args.object), 20),
             f"load_or_compute {V} x 64, cache hit": time_it(
                 lambda: prt.load_or_compute(obj, 8, n_dirs=N_DIRS, cache_dir=tmp), 20),

@@ -1,12 +1,15 @@
 """Time reliability marking (paper 003 §5.2) on a 224×172 RGB-D frame, one thread.
 
-    python benchmarks/bench_reliability.py [--repeats N] [--json PATH]
+    python benchmarks/bench_reliability.py [--repeats N] [--session DIR] [--json PATH]
 
 Cases: ``mark_reliable`` with each method (numba kernels, the library's code) and, for comparison,
 vectorised numpy versions of the same two statistics (the reason the library uses numba). The input
 is a noisy simulated-like frame: a slanted wall with a box in front, 1 % range noise, two unknown
 regions and 0.5 % unknown speckle, a few dark and bright pixels. Numba is pinned to one thread
-(``NUMBA_NUM_THREADS=1``), as the kernels are serial anyway.
+(``NUMBA_NUM_THREADS=1``), as the kernels are serial anyway. Session rows: the RGB-D frames of eight
+depth frames of the recorded default session (``runs/default/session``; bench_ingest.session_frames),
+cycled, and ``discontinuity_test`` on their hole-filled frames (all outputs, as the capture stage
+calls it).
 """
 
 from __future__ import annotations
@@ -24,11 +27,13 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from benchmarks.bench_ingest import DEFAULT_SESSION, cycling, session_frames  # noqa: E402
 from benchmarks.common import print_table, time_it  # noqa: E402
 from rgbd_envmap.depth.reliability import (  # noqa: E402
     MIN_NEIGHBOURS_DEFAULT,
     MONROY2018_THRESHOLD,
     _chi2_thresholds,
+    discontinuity_test,
     exposure_ok,
     mark_reliable,
 )
@@ -144,6 +149,7 @@ def make_frame(height: int = 172, width: int = 224, seed: int = 0):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=300)
+    parser.add_argument("--session", type=Path, default=DEFAULT_SESSION, help="a recorded session (rgbd-envmap simulate)")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
 
@@ -159,6 +165,16 @@ def main() -> None:
         rows[f"mark_reliable {method} (numba) 224x172"] = time_it(lambda m=method: mark_reliable(rgb, depth, known, m), args.repeats, warmup=5)
         rows[f"mark_reliable {method} (numpy) 224x172"] = time_it(lambda m=method: mark_reliable_numpy(rgb, depth, known, m), max(20, args.repeats // 10), warmup=2)
     rows["exposure_ok alone 224x172"] = time_it(lambda: exposure_ok(rgb), args.repeats, warmup=5)
+    frames = session_frames(args.session)
+    if frames is None:
+        print(f"no session at {args.session}: session rows skipped (rgbd-envmap simulate writes one)")
+    else:
+        for method in ("noise_model", "monroy2018"):
+            rows[f"mark_reliable {method} session frames"] = time_it(
+                cycling(frames, lambda f, m=method: mark_reliable(f.frame.rgb, f.frame.depth_m, f.frame.known, m)),
+                args.repeats, warmup=5)
+        rows["discontinuity_test session frames, filled (capture stage)"] = time_it(
+            cycling(frames, lambda f: discontinuity_test(f.filled_depth, f.filled_known)), args.repeats, warmup=5)
     print_table(rows)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2))

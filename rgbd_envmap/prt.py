@@ -537,7 +537,6 @@ def shade(transfer: np.ndarray, coeffs: np.ndarray, albedo, *, out: np.ndarray |
     if a.shape not in ((), (3,)):
         raise ShapeError(f"albedo: expected shape () or (3,), got {a.shape}")
     K = min(T.shape[1], L.shape[0])
-    weights = (L[:K] * (np.broadcast_to(a, (3,)) / math.pi)).astype(np.float32)
     if T.dtype != np.float32:
         T = T.astype(np.float32)
     if out is None:
@@ -546,9 +545,36 @@ def shade(transfer: np.ndarray, coeffs: np.ndarray, albedo, *, out: np.ndarray |
         check_array(out, "out", shape=(T.shape[0], 3), dtype=np.float32)
     # A single-threaded kernel, not BLAS: a (V, 25) × (25, 3) product is too small for threads, and
     # on a busy 2-core machine OpenBLAS's thread wake-ups took the median from 0.3 ms to 8–10 ms
-    # inside the pipeline (benchmarks/bench_prt.py times both).
-    _shade_kernel(T, np.ascontiguousarray(weights.T), K, out)
+    # inside the pipeline (benchmarks/bench_prt.py times both). The weights L_k · albedo / π are
+    # formed in the kernel's caller too: as numpy temporaries they cost 0.05–0.09 ms in the pipeline.
+    if L.dtype in _FLOATS and a.dtype in _FLOATS:
+        _shade(T, L, np.broadcast_to(a, (3,)), a.dtype.type(math.pi), K, out)
+    else:  # integer coefficients or albedo: numpy's promotion rules decide the weights' rounding
+        weights = (L[:K] * (np.broadcast_to(a, (3,)) / math.pi)).astype(np.float32)
+        _shade_kernel(T, np.ascontiguousarray(weights.T), K, out)
     return out
+
+
+_FLOATS = (np.dtype(np.float32), np.dtype(np.float64))
+
+
+@numba.njit(cache=True)
+def _shade_weights(L, albedo, pi, K):  # pragma: no cover - compiled
+    """(3, K) float32 weights L[k, c] · (albedo[c] / π), rounded as numpy's
+    ``(L * (albedo / math.pi)).astype(float32)`` rounds them: ``pi`` has albedo's dtype (numpy divides
+    a float32 albedo by π in float32), products in the wider of the two dtypes. No fastmath here:
+    the division must stay a division."""
+    wt = np.empty((3, K), np.float32)
+    for c in range(3):
+        s = albedo[c] / pi
+        for k in range(K):
+            wt[c, k] = np.float32(L[k, c] * s)
+    return wt
+
+
+@numba.njit(cache=True)
+def _shade(T, L, albedo, pi, K, out):  # pragma: no cover - compiled
+    _shade_kernel(T, _shade_weights(L, albedo, pi, K), K, out)
 
 
 @numba.njit(cache=True, fastmath=True)
@@ -570,10 +596,38 @@ def _shade_kernel(T, wt, K, out):  # pragma: no cover - compiled
         out[v, 2] = b
 
 
-def _luminance_irradiance(transfer: np.ndarray, L: np.ndarray) -> np.ndarray:
-    K = min(transfer.shape[1], L.shape[0])
-    w = (L[:K].astype(np.float64) @ LUMINANCE_WEIGHTS).astype(np.float32)  # luminance of each coefficient
-    return transfer[:, :K] @ w
+@numba.njit(cache=True, fastmath=True)
+def _luminance_dots(T, w, out):  # pragma: no cover - compiled
+    """out[p] = Σ_k T[p, k] w[k] in float32 (fastmath: SIMD partial sums)."""
+    K = w.shape[0]
+    for p in range(T.shape[0]):
+        acc = np.float32(0.0)
+        for k in range(K):
+            acc += T[p, k] * w[k]
+        out[p] = acc
+
+
+@numba.njit(cache=True)
+def _alpha_kernel(T_with, T_without, L, lum, tiny_factor):  # pragma: no cover - compiled
+    """:func:`shadow_alpha` after validation: float32 sums like BLAS's (in their own order)."""
+    K = min(T_with.shape[1], L.shape[0])
+    w = np.empty(K, np.float32)
+    for k in range(K):  # luminance of each coefficient, float64 then rounded (as the numpy version)
+        w[k] = np.float32(L[k, 0] * lum[0] + L[k, 1] * lum[1] + L[k, 2] * lum[2])
+    mean_lum = abs(L[0, 0] * lum[0] + L[0, 1] * lum[1] + L[0, 2] * lum[2]) / np.sqrt(4.0 * np.pi)
+    tiny = np.float32(max(tiny_factor * np.pi * mean_lum, 1e-12))  # compared in float32, as numpy did
+    P = T_with.shape[0]
+    e_with = np.empty(P, np.float32)
+    e_without = np.empty(P, np.float32)
+    _luminance_dots(T_with, w, e_with)
+    _luminance_dots(T_without, w, e_without)
+    alpha = np.empty(P, np.float32)
+    for p in range(P):
+        ratio = e_with[p] / e_without[p] if e_without[p] > tiny else np.float32(1.0)
+        a = np.float32(1.0) - ratio
+        a = np.float32(0.0) if a < 0.0 else a  # np.clip(a, 0, 1), NaN (a NaN transfer) passing through
+        alpha[p] = np.float32(1.0) if a > 1.0 else a
+    return alpha
 
 
 def shadow_alpha(plane: ShadowPlane, coeffs: np.ndarray) -> np.ndarray:
@@ -584,6 +638,10 @@ def shadow_alpha(plane: ShadowPlane, coeffs: np.ndarray) -> np.ndarray:
     luminance, |L_00| Y_00, with an absolute floor of 1e-12) the ratio means nothing (no light from
     above, or SH ringing below zero) and alpha is 0.
 
+    One single-threaded pass (float32 sums of float32 transfer × float32 luminance weights); BLAS
+    gemv inside the pipeline cost 0.14 ms for 2304 × 25, mostly call overhead. Its sums associate
+    differently, so alpha differs from a BLAS product by float32 rounding (≤ 1e-6).
+
     Args:
         plane: :class:`ShadowPlane`. coeffs: (n², 3) finite SH radiance coefficients.
 
@@ -593,10 +651,5 @@ def shadow_alpha(plane: ShadowPlane, coeffs: np.ndarray) -> np.ndarray:
     if not isinstance(plane, ShadowPlane):
         raise DTypeError(f"plane: expected a ShadowPlane, got {type(plane).__name__}")
     L = _coeffs(coeffs)
-    e_with = _luminance_irradiance(plane.transfer_with, L)
-    e_without = _luminance_irradiance(plane.transfer_without, L)
-    mean_lum = abs(float(L[0].astype(np.float64) @ LUMINANCE_WEIGHTS)) / math.sqrt(4.0 * math.pi)
-    tiny = max(_ALPHA_TINY * math.pi * mean_lum, 1e-12)
-    ok = e_without > tiny
-    ratio = np.divide(e_with, e_without, out=np.ones_like(e_with), where=ok)
-    return np.clip(1.0 - ratio, 0.0, 1.0).astype(np.float32)
+    return _alpha_kernel(plane.transfer_with, plane.transfer_without, L.astype(np.float64, copy=False),
+                         LUMINANCE_WEIGHTS, _ALPHA_TINY)

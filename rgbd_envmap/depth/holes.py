@@ -9,10 +9,10 @@ pixels. Three methods sit behind one dispatcher (:data:`FILL_METHODS`):
     *originally* known pixel in each direction; x_r is its Euclidean pixel distance (k steps → k on an
     axis, k·√2 on a diagonal); w_n = max(0, (w − x_r) / w) with w the frame **width** in pixels;
     d = Σ w_n d_n / Σ w_n. A pixel stays unknown when every weight is 0 (no known pixel along any ray,
-    or all of them at x_r ≥ w). Filled pixels never serve as sources. Implemented as one O(H·W) pass
-    per direction (carrying the nearest source from the neighbour towards that direction) in a
-    single-threaded numba kernel, not as a per-pixel march, so the cost does not grow with hole
-    size. Sums in float64.
+    or all of them at x_r ≥ w). Filled pixels never serve as sources. Implemented as two O(H·W)
+    sweeps that keep the nearest source of every ray (a single-threaded numba kernel, not a per-pixel
+    march, so the cost does not grow with hole size), evaluating eq. (1) only at the unknown pixels.
+    Sums in float64.
 ``"telea"``
     OpenCV's fast-marching inpainting (Telea 2004) on the float32 depth image (in units of 10 µm, see
     :data:`_TELEA_SCALE`), ``radius_px`` = 5 by default. It reaches every pixel, so ``known_after`` is
@@ -63,115 +63,139 @@ __all__ = ["FILL_METHODS", "fill_holes"]
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _ray(y, x, ys, dx, flat, w, wf, inv_w, scale):  # pragma: no cover - compiled
+    """Weight and depth of one ray's source for the hole (y, x): the nearest known pixel on the ray
+    lies in row ``ys``, k = |y − ys| steps away, in column x + dx·k. Weight max(0, (w − k·scale) / w);
+    beyond w steps (or with no source, ``ys`` far away) it is 0 by the formula itself, and the depth
+    read is the hole's own pixel, replaced by 0 (so the term w·d is +0 exactly). Branch-free."""
+    k = abs(y - ys)
+    near = k < w
+    weight = max(0.0, (wf - float(k) * scale) * inv_w)
+    at = (ys * w + x + dx * k) if near else (y * w + x)
+    d = np.float64(flat[np.uint64(at)])
+    return weight, d if near else 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _three_rays(y, x, src_v, src_l, src_r, flat, w, wf, inv_w, sqrt2):  # pragma: no cover - compiled
+    """(Σ w_n d_n, Σ w_n) over the vertical ray and the diagonal rays towards columns x − 1 and x + 1
+    of one sweep; ``src_*`` hold the row of each ray's nearest known pixel (the diagonal ones as views
+    indexed by x for this row)."""
+    wv, dv = _ray(y, x, src_v[x], 0, flat, w, wf, inv_w, 1.0)
+    wl, dl = _ray(y, x, src_l[x], -1, flat, w, wf, inv_w, sqrt2)
+    wr, dr = _ray(y, x, src_r[x], 1, flat, w, wf, inv_w, sqrt2)
+    return wv * dv + wl * dl + wr * dr, wv + wl + wr
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _monroy2018_kernel(depth, known):  # pragma: no cover - compiled
     """(H, W) float32 depth, (H, W) bool known → (H, W) float32 filled, (H, W) bool known_after.
 
-    Per direction, the nearest source of pixel p is p + step if that pixel is known, else the nearest
-    source of p + step, one step further. Visiting pixels so that p + step is done first makes each
-    direction one pass over the image:
+    Only the unknown pixels need eq. (1); the known ones only serve as sources. So the image is swept
+    twice, top to bottom (sources above: up, up-left, up-right) and bottom to top (sources below),
+    keeping per ray the **row of its nearest known pixel** so far: one int32 per column for the
+    vertical rays and one per diagonal (x − y or x + y) for the diagonal ones, so a diagonal's state
+    sits at one index for the whole sweep. After each row, its known pixels become the sources of
+    their column and diagonals (a branch-free select over the row, SIMD). An unknown pixel reads its
+    three sources from those states (:func:`_three_rays`) and their depths straight from the image.
+    Left and right sources come from the row's list of unknown pixels: the left source of a hole is
+    x − 1, or, when x − 1 is a hole too, that hole's left source. Cost: O(H·W) selects plus eq. (1)
+    per *unknown* pixel (the former kernel evaluated it at every pixel: 0.31 → 0.07 ms on the 224×172
+    session frames, 1.6 % unknown; similar at 30 % unknown).
 
-    * two row sweeps, top to bottom (sources above: up, up-left, up-right) and bottom to top (sources
-      below). The state is one row per direction holding, for each column, the step count to the
-      nearest source on the ray through the previous row's pixel (0 when that pixel is known) and
-      the source's depth. The vertical ray reads its own column; a diagonal ray reads the column
-      beside it, so its state row is double-buffered and padded with a "no source" column each side.
-    * two scans along each row for left and right, done in the bottom-to-top sweep.
-
-    "No source" is a step count of w, where both weights are already 0, so the inner loops carry no
-    special cases and compile to selects. The weights are computed per pixel from the step count k
-    as max(0, (w − k·s) / w), s = 1 or √2; k·√2 never equals w for integers, so the cut-off is
-    exact. Sums of w_n·d_n and w_n in float64; the top-to-bottom half is kept per pixel until the
-    bottom-to-top sweep adds its half, its row scans, and writes the row.
+    Weights are max(0, (w − k·s) / w), s = 1 or √2, from the step count k, and the sums of w_n·d_n
+    and w_n run in float64 in the former kernel's order (up, up-left, up-right; down, down-left,
+    down-right, left, right), so the result is the same bit for bit; a ray without a source within w
+    steps adds +0. k·√2 never equals w for integers, so the cut-off is exact.
     """
     h, w = depth.shape
     wf = float(w)
     inv_w = 1.0 / wf
     sqrt2 = np.sqrt(2.0)
-    none = wf  # step count meaning "no source": weight 0 on every ray
-    num_down = np.empty((h, w))  # Σ w_n d_n and Σ w_n of the top-to-bottom sweep
-    den_down = np.empty((h, w))
-    num = np.empty(w)
-    den = np.empty(w)
-    k_v = np.empty(w)
-    d_v = np.empty(w)
-    # Diagonal states, column x at index x + 1; "_next" is the row being written.
-    k_l, d_l, k_l_next, d_l_next = np.empty(w + 2), np.empty(w + 2), np.empty(w + 2), np.empty(w + 2)
-    k_r, d_r, k_r_next, d_r_next = np.empty(w + 2), np.empty(w + 2), np.empty(w + 2), np.empty(w + 2)
-    out = np.zeros((h, w), np.float32)
-    after = np.zeros((h, w), np.bool_)
+    out = np.empty((h, w), np.float32)
+    after = np.empty((h, w), np.bool_)
+    for y in range(h):
+        for x in range(w):
+            k = known[y, x]
+            out[y, x] = depth[y, x] if k else np.float32(0.0)
+            after[y, x] = k
+    # The unknown pixels, row by row: holes[start[y]:start[y + 1]] are row y's, by increasing x.
+    holes = np.empty(h * w, np.uint32)  # unsigned: no negative-index checks where x indexes
+    start = np.empty(h + 1, np.int64)
+    n = 0
+    for y in range(h):
+        start[y] = n
+        for x in range(w):
+            holes[n] = x  # branch-free compaction: always written, kept only for a hole
+            n += 0 if known[y, x] else 1
+    start[h] = n
+    if n == 0:
+        return out, after
+    flat = depth.reshape(-1)
+    num_down = np.empty(n)  # Σ w_n d_n and Σ w_n of the top-to-bottom sweep, per hole
+    den_down = np.empty(n)
+    right = np.empty(n, np.int64)  # each hole's right source (column), −1: none
+    src_v = np.empty(w, np.int32)  # row of the nearest known pixel on each ray
+    src_a = np.empty(w + h, np.int32)  # diagonals x − y, at index x − y + h − 1
+    src_b = np.empty(w + h, np.int32)  # anti-diagonals x + y
     for sweep in range(2):
-        k_v[:] = none
-        k_l[:] = none
-        k_r[:] = none
-        k_l_next[:] = none
-        k_r_next[:] = none
-        d_v[:] = 0.0
-        d_l[:] = 0.0
-        d_r[:] = 0.0
-        d_l_next[:] = 0.0
-        d_r_next[:] = 0.0
+        down = sweep == 1
+        # "No source": a row at least w steps from every row of the image (weight 0 on every ray).
+        none = np.int32(h + w) if down else np.int32(-w)
+        src_v[:] = none
+        src_a[:] = none
+        src_b[:] = none
         for i in range(h):
-            y = i if sweep == 0 else h - 1 - i
-            kn = known[y]
-            dep = depth[y]
-            for x in range(w):
-                is_known = kn[x]
-                d = np.float64(dep[x])
-                kv = min(k_v[x] + 1.0, none)
-                kl = min(k_l[x] + 1.0, none)  # from column x − 1 of the previous row
-                kr = min(k_r[x + 2] + 1.0, none)  # from column x + 1
-                dl = d_l[x]
-                dr = d_r[x + 2]
-                wv = max(0.0, (wf - kv) * inv_w)
-                wl = max(0.0, (wf - kl * sqrt2) * inv_w)
-                wr = max(0.0, (wf - kr * sqrt2) * inv_w)
-                num[x] = wv * d_v[x] + wl * dl + wr * dr
-                den[x] = wv + wl + wr
-                # All step counts first, then all depths: the other order runs ~10 % slower.
-                k_v[x] = 0.0 if is_known else kv
-                k_l_next[x + 1] = 0.0 if is_known else kl
-                k_r_next[x + 1] = 0.0 if is_known else kr
-                d_v[x] = d if is_known else d_v[x]
-                d_l_next[x + 1] = d if is_known else dl
-                d_r_next[x + 1] = d if is_known else dr
-            k_l, k_l_next = k_l_next, k_l
-            d_l, d_l_next = d_l_next, d_l
-            k_r, k_r_next = k_r_next, k_r
-            d_r, d_r_next = d_r_next, d_r
-            if sweep == 0:
-                for x in range(w):
-                    num_down[y, x] = num[x]
-                    den_down[y, x] = den[x]
-            else:
-                k = none
-                v = 0.0
-                for x in range(w):  # sources to the left
-                    k = min(k + 1.0, none)
-                    wt = max(0.0, (wf - k) * inv_w)
-                    num[x] += wt * v
-                    den[x] += wt
-                    if kn[x]:
-                        k = 0.0
-                        v = np.float64(dep[x])
-                k = none
-                v = 0.0
-                for x in range(w - 1, -1, -1):  # sources to the right
-                    k = min(k + 1.0, none)
-                    wt = max(0.0, (wf - k) * inv_w)
-                    num[x] += wt * v
-                    den[x] += wt
-                    if kn[x]:
-                        k = 0.0
-                        v = np.float64(dep[x])
-                for x in range(w):
-                    if kn[x]:
-                        out[y, x] = dep[x]
-                        after[y, x] = True
+            y = h - 1 - i if down else i
+            first, last = start[y], start[y + 1]
+            sa = src_a[h - 1 - y:h - 1 - y + w]  # this row's diagonals, indexed by x
+            sb = src_b[y:y + w]
+            if not down:  # up-left: diagonal x − y; up-right: x + y
+                for j in range(first, last):
+                    num_down[j], den_down[j] = _three_rays(y, holes[j], src_v, sa, sb, flat, w, wf, inv_w, sqrt2)
+            else:  # down-left: anti-diagonal x + y; down-right: x − y; then left and right
+                for j in range(last - 1, first - 1, -1):
+                    x = holes[j]
+                    if x == w - 1:
+                        right[j] = -1
+                    elif j + 1 < last and holes[j + 1] == x + 1:
+                        right[j] = right[j + 1]
                     else:
-                        total = den[x] + den_down[y, x]
-                        if total > 0.0:
-                            out[y, x] = np.float32((num[x] + num_down[y, x]) / total)
-                            after[y, x] = True
+                        right[j] = x + 1
+                row = y * w
+                left = -1
+                for j in range(first, last):
+                    x = holes[j]
+                    num, den = _three_rays(y, x, src_v, sb, sa, flat, w, wf, inv_w, sqrt2)
+                    if x == 0:
+                        left = -1
+                    elif j == first or holes[j - 1] != x - 1:
+                        left = x - 1
+                    has = left >= 0
+                    wt = max(0.0, (wf - float(x - left)) * inv_w) if has else 0.0
+                    v = np.float64(flat[np.uint64(row + (left if has else x))])
+                    num += wt * (v if has else 0.0)
+                    den += wt
+                    r = right[j]
+                    has = r >= 0
+                    wt = max(0.0, (wf - float(r - x)) * inv_w) if has else 0.0
+                    v = np.float64(flat[np.uint64(row + (r if has else x))])
+                    num += wt * (v if has else 0.0)
+                    den += wt
+                    total = den + den_down[j]
+                    if total > 0.0:
+                        out[y, x] = np.float32((num + num_down[j]) / total)
+                        after[y, x] = True
+            # The row's known pixels become the nearest sources of their column and diagonals.
+            # (Views, not offset indices: numba's negative-index check on an offset kept these scalar.)
+            yy = np.int32(y)
+            kn = known[y]
+            for x in range(w):
+                src_v[x] = yy if kn[x] else src_v[x]
+            for x in range(w):
+                sa[x] = yy if kn[x] else sa[x]
+            for x in range(w):
+                sb[x] = yy if kn[x] else sb[x]
     return out, after
 
 

@@ -77,7 +77,7 @@ unreliable; a window whose arithmetic overflows (absurd depths) is rejected. The
 unknown pixels are never used.
 
 The kernels are numba (single thread, no image-sized scratch); :func:`mark_reliable` on 224×172
-takes about half a millisecond (benchmarks/bench_reliability.py).
+takes about 0.3 ms (benchmarks/bench_reliability.py; docs/reliability.md has what made it so).
 
 Example:
     >>> import numpy as np
@@ -156,59 +156,73 @@ class DiscontinuityTest:
 # neighbour contributes 0), so nothing image-sized is allocated besides the outputs. Each image row is
 # computed branch-free into row buffers (which LLVM vectorises), then judged by ``_verdict_row``.
 # With ``full`` False only ``passed`` and ``testable`` are written (``stat``, ``n_nb``, ``threshold`` may be
-# 1×1 dummies); with ``use_rgb`` the exposure rule is applied to ``passed`` too. The error model is
-# numpy's: a division by zero or an overflow gives inf / NaN (then rejected), never an exception.
+# 1×1 dummies). The exposure rule is a separate pass over ``passed`` (``_exposure_and_*``). The error
+# model is numpy's: a division by zero or an overflow gives inf / NaN (then rejected), never an
+# exception.
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
-def _exposed(rgb, r, c, dark, bright):  # pragma: no cover - compiled
-    x = rgb[r, c, 0]
-    y = rgb[r, c, 1]
-    z = rgb[r, c, 2]
-    total = float(x) + float(y) + float(z)
-    if not total - total == 0.0:  # NaN or inf in some channel
-        return False
-    if x < dark and y < dark and z < dark:
-        return False
-    return not (x > bright and y > bright and z > bright)
+@numba.njit(cache=True, error_model="numpy")
+def _threshold_of(nb, t0, t1, t2, t3, t4, t5, t6, t7, t8):  # pragma: no cover - compiled
+    """The threshold for ``nb`` (a float 0 … 8) known neighbours, as a chain of selects: a table lookup
+    kept the loops scalar (LLVM could not bound the table's reads against the stores)."""
+    return (t8 if nb == 8.0 else t7 if nb == 7.0 else t6 if nb == 6.0 else t5 if nb == 5.0 else t4 if nb == 4.0
+            else t3 if nb == 3.0 else t2 if nb == 2.0 else t1 if nb == 1.0 else t0)
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _verdict_row(
-    r, t_row, count_row, centre_mask, thr_by_nb, min_nb, rgb, use_rgb, dark, bright, full,
-    stat, n_nb, threshold, passed, testable,
+    r, t_row, count_row, centre_mask, thr_by_nb, min_nb, full, stat, n_nb, threshold, passed, testable,
 ):  # pragma: no cover - compiled
     """Judge image row ``r``: statistic ``t_row[c]``, ``count_row[c]`` known pixels in the window
     (centre included), ``centre_mask[c + 1]`` > 0 where the pixel itself is known. A pixel is
     testable when it has ≥ min(``min_nb``, its in-image neighbours) known neighbours and
-    ``thr_by_nb`` has a threshold (≥ 0) for that count. Branch-free (bitwise ``&`` on booleans)."""
+    ``thr_by_nb`` has a threshold (≥ 0) for that count; it passes when testable and the statistic is
+    ≤ the threshold (false for NaN: overflowed arithmetic).
+
+    Everything runs in float64 lanes so that the loop is SIMD: the neighbour count (an exact small
+    integer) stays a float. Inside the row every pixel needs min(``min_nb``, rows in image × 3 − 1)
+    neighbours; when that is 8 (the default, away from the top and bottom rows), or when every count
+    has the same threshold (``monroy2018``), only ``thr_by_nb[8]`` can apply and the select chain is
+    skipped. The first and last column, with fewer in-image neighbours, are judged again after.
+    """
     h = passed.shape[0]
     w = t_row.shape[0]
     rows_in = min(r + 1, h - 1) - max(r - 1, 0) + 1
-    for c in range(w):
-        known_c = centre_mask[c + 1] > 0.0
-        nb = min(max(int(count_row[c]) - 1, 0), 8)
+    t0, t1, t2, t3, t4 = thr_by_nb[0], thr_by_nb[1], thr_by_nb[2], thr_by_nb[3], thr_by_nb[4]
+    t5, t6, t7, t8 = thr_by_nb[5], thr_by_nb[6], thr_by_nb[7], thr_by_nb[8]
+    uniform = t0 == t8 and t1 == t8 and t2 == t8 and t3 == t8 and t4 == t8 and t5 == t8 and t6 == t8 and t7 == t8
+    prow = passed[r]
+    trow = testable[r]
+    need = float(min(min_nb, rows_in * 3 - 1))
+    if need >= 8.0 or uniform:  # only thr_by_nb[8] can apply
+        for c in range(w):
+            nb = min(max(count_row[c] - 1.0, 0.0), 8.0)
+            ok_test = (centre_mask[c + 1] > 0.0) & (t8 >= 0.0) & (nb >= need)
+            prow[c] = ok_test & (t_row[c] <= t8)
+            trow[c] = ok_test
+    else:
+        for c in range(w):
+            nb = min(max(count_row[c] - 1.0, 0.0), 8.0)
+            t = _threshold_of(nb, t0, t1, t2, t3, t4, t5, t6, t7, t8)
+            ok_test = (centre_mask[c + 1] > 0.0) & (t >= 0.0) & (nb >= need)
+            prow[c] = ok_test & (t_row[c] <= t)
+            trow[c] = ok_test
+    for c in (0, w - 1):  # (twice the same pixel when w = 1: harmless)
         n_in = rows_in * (min(c + 1, w - 1) - max(c - 1, 0) + 1) - 1
-        t = thr_by_nb[nb]
-        s = t_row[c]
-        s = s if s == s else np.inf  # NaN from overflowed arithmetic: rejected, never NaN
-        ok_test = known_c & (t >= 0.0) & (nb >= min(min_nb, n_in))
-        ok = ok_test & (s <= t)
-        if use_rgb:
-            x = float(rgb[r, c, 0])
-            y = float(rgb[r, c, 1])
-            z = float(rgb[r, c, 2])
-            total = x + y + z
-            finite = total - total == 0.0  # False when a channel is NaN or inf
-            under = (x < dark) & (y < dark) & (z < dark)
-            over = (x > bright) & (y > bright) & (z > bright)
-            ok = ok & finite & ~(under | over)
-        passed[r, c] = ok
-        testable[r, c] = ok_test
-        if full:
-            stat[r, c] = s if ok_test else 0.0
-            threshold[r, c] = t if ok_test else 0.0
-            n_nb[r, c] = nb if known_c else 0
+        nb = min(max(count_row[c] - 1.0, 0.0), 8.0)
+        t = _threshold_of(nb, t0, t1, t2, t3, t4, t5, t6, t7, t8)
+        ok_test = (centre_mask[c + 1] > 0.0) & (t >= 0.0) & (nb >= float(min(min_nb, n_in)))
+        prow[c] = ok_test & (t_row[c] <= t)
+        trow[c] = ok_test
+    if full:
+        for c in range(w):
+            nb = min(max(count_row[c] - 1.0, 0.0), 8.0)
+            t = _threshold_of(nb, t0, t1, t2, t3, t4, t5, t6, t7, t8)
+            s = t_row[c]
+            s = s if s == s else np.inf  # NaN from overflowed arithmetic: reported as +inf
+            stat[r, c] = s if trow[c] else 0.0
+            threshold[r, c] = t if trow[c] else 0.0
+            n_nb[r, c] = np.int8(nb) if centre_mask[c + 1] > 0.0 else np.int8(0)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -222,7 +236,7 @@ def _monroy2018_row(depth, known, r, slot, d_ring, m_ring):  # pragma: no cover 
 
 @numba.njit(cache=True, error_model="numpy")
 def _monroy2018_kernel(
-    depth, known, thr_by_nb, min_nb, rgb, use_rgb, dark, bright, full, stat, n_nb, threshold, passed, testable
+    depth, known, thr_by_nb, min_nb, full, stat, n_nb, threshold, passed, testable
 ):  # pragma: no cover - compiled
     h, w = depth.shape
     d_ring = np.zeros((3, w + 2))
@@ -254,8 +268,7 @@ def _monroy2018_kernel(
             t_row[c] = s / d  # d = 0 at unknown pixels: inf / NaN, never read
             count_row[c] = n
         _verdict_row(
-            r, t_row, count_row, m_c, thr_by_nb, min_nb, rgb, use_rgb, dark, bright, full,
-            stat, n_nb, threshold, passed, testable,
+            r, t_row, count_row, m_c, thr_by_nb, min_nb, full, stat, n_nb, threshold, passed, testable,
         )
 
 
@@ -279,8 +292,7 @@ def _noise_model_row(depth, known, r, slot, noise_rel, noise_abs, w_ring, wy_rin
 
 @numba.njit(cache=True, error_model="numpy")
 def _noise_model_kernel(
-    depth, known, noise_rel, noise_abs, thr_by_nb, min_nb, rgb, use_rgb, dark, bright, full,
-    stat, n_nb, threshold, passed, testable,
+    depth, known, noise_rel, noise_abs, thr_by_nb, min_nb, full, stat, n_nb, threshold, passed, testable,
 ):  # pragma: no cover - compiled
     h, w = depth.shape
     w_ring = np.zeros((3, w + 2))
@@ -312,14 +324,23 @@ def _noise_model_kernel(
         centre = (r + 1) % 3
         w_a, w_c, w_b = w_ring[above], w_ring[centre], w_ring[below]
         wy_a, wy_c, wy_b = wy_ring[above], wy_ring[centre], wy_ring[below]
+        q_a, q_c, q_b = wyy_ring[above], wyy_ring[centre], wyy_ring[below]
+        n_a, n_c, n_b = n_ring[above], n_ring[centre], n_ring[below]
+        # One output per loop: with all seven in one loop it ran at half the speed.
         for c in range(w + 2):
             a1[c] = w_a[c] + w_c[c] + w_b[c]
+        for c in range(w + 2):
             ad[c] = w_b[c] - w_a[c]
+        for c in range(w + 2):
             a2[c] = w_a[c] + w_b[c]
+        for c in range(w + 2):
             b1[c] = wy_a[c] + wy_c[c] + wy_b[c]
+        for c in range(w + 2):
             bd[c] = wy_b[c] - wy_a[c]
-            c1[c] = wyy_ring[above, c] + wyy_ring[centre, c] + wyy_ring[below, c]
-            n1[c] = n_ring[above, c] + n_ring[centre, c] + n_ring[below, c]
+        for c in range(w + 2):
+            c1[c] = q_a[c] + q_c[c] + q_b[c]
+        for c in range(w + 2):
+            n1[c] = n_a[c] + n_c[c] + n_b[c]
         for c in range(w):
             s0 = a1[c] + a1[c + 1] + a1[c + 2]
             su = a1[c + 2] - a1[c]
@@ -346,16 +367,63 @@ def _noise_model_kernel(
             t_row[c] = 0.0 if t < 0.0 else t  # rounding can go below 0; NaN stays NaN (→ rejected)
             count_row[c] = n1[c] + n1[c + 1] + n1[c + 2]
         _verdict_row(
-            r, t_row, count_row, n_ring[centre], thr_by_nb, min_nb, rgb, use_rgb, dark, bright, full,
-            stat, n_nb, threshold, passed, testable,
+            r, t_row, count_row, n_ring[centre], thr_by_nb, min_nb, full, stat, n_nb, threshold, passed, testable,
         )
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _exposure_kernel(rgb, dark, bright, out):  # pragma: no cover - compiled
-    for r in range(rgb.shape[0]):
-        for c in range(rgb.shape[1]):
-            out[r, c] = _exposed(rgb, r, c, dark, bright)
+def _exposure_and_f64(rgb, dark, bright, passed):  # pragma: no cover - compiled
+    """passed &= the exposure rule, on (H, W, 3) float64 (any finite dark, bright), SIMD."""
+    flat = rgb.reshape(-1)
+    out = passed.reshape(-1)
+    for i in range(out.shape[0]):
+        x = flat[3 * i]
+        y = flat[3 * i + 1]
+        z = flat[3 * i + 2]
+        total = x + y + z
+        finite = total - total == 0.0  # False when a channel is NaN or inf (or the sum overflows)
+        under = (x < dark) & (y < dark) & (z < dark)
+        over = (x > bright) & (y > bright) & (z > bright)
+        out[i] = out[i] & finite & ~(under | over)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _exposure_and_f32(rgb, dark, bright, passed):  # pragma: no cover - compiled
+    """passed &= the exposure rule, on (H, W, 3) float32 with float32 ``dark`` / ``bright`` from
+    :func:`_float32_thresholds`: eight lanes instead of four, and the same verdicts as comparing with
+    the float64 thresholds. The finiteness test sums the channels in float32, as the rule always has
+    for float32 colour (so channels near the float32 maximum, whose sum overflows, count as non-finite)."""
+    flat = rgb.reshape(-1)
+    out = passed.reshape(-1)
+    for i in range(out.shape[0]):
+        x = flat[3 * i]
+        y = flat[3 * i + 1]
+        z = flat[3 * i + 2]
+        total = x + y + z
+        finite = total - total == total - total  # False when a channel is NaN or inf (or the sum overflows)
+        under = (x < dark) & (y < dark) & (z < dark)
+        over = (x > bright) & (y > bright) & (z > bright)
+        out[i] = out[i] & finite & ~(under | over)
+
+
+def _float32_thresholds(dark: float, bright: float) -> tuple[np.float32, np.float32]:
+    """float32 (d, b) with x < d ⇔ x < dark and x > b ⇔ x > bright for every float32 x (compared
+    exactly, as float64): d is the smallest float32 ≥ dark, b the largest ≤ bright."""
+    with np.errstate(over="ignore"):
+        d, b = np.float32(dark), np.float32(bright)
+    if float(d) < dark:
+        d = np.nextafter(d, np.float32(np.inf))
+    if float(b) > bright:
+        b = np.nextafter(b, np.float32(-np.inf))
+    return d, b
+
+
+def _apply_exposure(rgb: np.ndarray, dark: float, bright: float, passed: np.ndarray) -> None:
+    """passed &= exposure_ok(rgb) (C-contiguous float32 or float64 rgb)."""
+    if rgb.dtype == np.float32:
+        _exposure_and_f32(rgb, *_float32_thresholds(dark, bright), passed)
+    else:
+        _exposure_and_f64(rgb, dark, bright, passed)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -412,10 +480,10 @@ def exposure_ok(rgb: np.ndarray, *, dark: float = 0.05, bright: float = 0.95) ->
     """
     rgb = check_array(rgb, "rgb", shape=("*", 3), dtype="float")
     dark, bright = _check_exposure_thresholds(dark, bright)
-    flat = _kernel_float(rgb.reshape(1, -1, 3))
-    out = np.empty(flat.shape[:2], bool)
-    if flat.shape[1]:
-        _exposure_kernel(flat, dark, bright, out)
+    flat = _kernel_float(rgb.reshape(-1, 1, 3))
+    out = np.ones(flat.shape[:2], bool)
+    if flat.shape[0]:
+        _apply_exposure(flat, dark, bright, out)
     return out.reshape(rgb.shape[:-1])
 
 
@@ -464,18 +532,18 @@ def _run(depth_m, known, rgb, method, noise_rel, noise_abs_m, p_value, min_neigh
         return stat, threshold, n_nb, passed, testable
     depth = _kernel_float(depth_m)
     known = np.ascontiguousarray(known)
-    use_rgb = rgb is not None
-    rgb = _kernel_float(rgb) if use_rgb else np.zeros((1, 1, 3))
     if method == "monroy2018":
         _monroy2018_kernel(
-            depth, known, _monroy2018_thresholds(monroy2018_threshold), min_neighbours, rgb, use_rgb, dark, bright,
-            full, stat, n_nb, threshold, passed, testable,
+            depth, known, _monroy2018_thresholds(monroy2018_threshold), min_neighbours, full, stat, n_nb, threshold,
+            passed, testable,
         )
     else:
         _noise_model_kernel(
-            depth, known, noise_rel, noise_abs_m, _chi2_thresholds(p_value), min_neighbours, rgb, use_rgb, dark,
-            bright, full, stat, n_nb, threshold, passed, testable,
+            depth, known, noise_rel, noise_abs_m, _chi2_thresholds(p_value), min_neighbours, full, stat, n_nb,
+            threshold, passed, testable,
         )
+    if rgb is not None:
+        _apply_exposure(_kernel_float(rgb), dark, bright, passed)
     return stat, threshold, n_nb, passed, testable
 
 

@@ -2,8 +2,10 @@
 
 The reference for "monroy2018" is :func:`_reference_eq1` below: a deliberately slow, obvious
 pure-Python transcription of eq. (1) that marches outward pixel by pixel from every unknown pixel in
-each of the 8 directions. The library's numba kernel shares no code with it (it sweeps each direction
-once over the whole image). Closed-form cases check the weights against the formula by hand.
+each of the 8 directions. The library's numba kernel shares no code with it (it sweeps the image
+twice, keeping the nearest source of every ray). :func:`_reference_eq1_in_kernel_order` marches the
+same way with the kernel's float64 order of operations, and pins the kernel bit for bit. Closed-form
+cases check the weights against the formula by hand.
 The baselines ("telea", "ip_basic") are checked on planar ramps and for their contracts.
 """
 
@@ -151,6 +153,55 @@ def test_monroy2018_matches_reference_on_blob_holes():
 def test_monroy2018_matches_reference_property(known, seed):
     depth = np.random.default_rng(seed).uniform(0.1, 5.0, known.shape).astype(np.float32)
     _assert_matches_reference(depth, known)
+
+
+def _reference_eq1_in_kernel_order(depth: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Eq. (1) once more, marching as :func:`_reference_eq1` does, but with the kernel's float64
+    arithmetic in the kernel's order: weights max(0, (w − k·s) · (1/w)) from the step count k (capped
+    at w) with s = 1 or √2; sums up, up-left, up-right, then down, down-left, down-right, left,
+    right. The kernel is pinned to this bit for bit (a regression in its arithmetic shows here)."""
+    h, w = depth.shape
+    wf, inv_w, s2 = float(w), 1.0 / float(w), math.sqrt(2.0)
+    out = np.zeros((h, w), np.float32)
+
+    def ray(y, x, dy, dx, scale):
+        k = 1
+        while 0 <= y + k * dy < h and 0 <= x + k * dx < w:
+            if known[y + k * dy, x + k * dx]:
+                kk = min(k, w)
+                return max(0.0, (wf - kk * scale) * inv_w), float(depth[y + k * dy, x + k * dx])
+            k += 1
+        return max(0.0, (wf - wf * scale) * inv_w), 0.0  # no source: weight 0
+
+    for y in range(h):
+        for x in range(w):
+            if known[y, x]:
+                out[y, x] = depth[y, x]
+                continue
+            (wa, da), (wb, db), (wc, dc) = ray(y, x, -1, 0, 1.0), ray(y, x, -1, -1, s2), ray(y, x, -1, 1, s2)
+            num_up, den_up = wa * da + wb * db + wc * dc, wa + wb + wc
+            (wa, da), (wb, db), (wc, dc) = ray(y, x, 1, 0, 1.0), ray(y, x, 1, -1, s2), ray(y, x, 1, 1, s2)
+            num, den = wa * da + wb * db + wc * dc, wa + wb + wc
+            for dx in (-1, 1):
+                wt, d = ray(y, x, 0, dx, 1.0)
+                num += wt * d
+                den += wt
+            if den + den_up > 0.0:
+                out[y, x] = np.float32((num + num_up) / (den + den_up))
+    return out
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 9), (11, 1), (17, 23), (60, 7), (7, 60), (45, 45)])
+@pytest.mark.parametrize("hole_fraction", [0.05, 0.5, 0.95])
+def test_monroy2018_is_bit_identical_to_the_kernel_order_reference(shape, hole_fraction):
+    """Tall frames (rays longer than the width), sparse and dense holes, and discs."""
+    rng = np.random.default_rng([shape[0], shape[1], int(hole_fraction * 100)])
+    depth, known = _random_case(rng, *shape, hole_fraction)
+    yy, xx = np.mgrid[:shape[0], :shape[1]]
+    disc = known & ((yy - shape[0] // 3) ** 2 + (xx - shape[1] // 2) ** 2 > (min(shape) // 3) ** 2)
+    for k in (known, disc):
+        out, _ = fill_holes(depth, k)
+        np.testing.assert_array_equal(out.view(np.uint32), _reference_eq1_in_kernel_order(depth, k).view(np.uint32))
 
 
 def test_monroy2018_all_unknown_stays_unknown():

@@ -1,5 +1,7 @@
 """Tango ingest against independent references: OpenCV projection and remap, and simulator truth."""
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -7,6 +9,7 @@ import pytest
 from rgbd_envmap.colour import srgb_to_linear
 from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError, ShapeError, UnknownMethodError
 from rgbd_envmap.geometry import pixel_rays
+from rgbd_envmap.ingest import tango
 from rgbd_envmap.ingest.tango import (
     TangoIngestConfig,
     colour_at_points,
@@ -16,7 +19,7 @@ from rgbd_envmap.ingest.tango import (
     depth_image_from_points,
     rgbd_frame_from_packets,
 )
-from rgbd_envmap.types import ColourPacket, DepthPacket, Distortion, Intrinsics, RigidTransform
+from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, Distortion, Intrinsics, RGBDFrame, RigidTransform
 from sim.colour_camera import ColourCameraConfig
 from sim.device import TangoDeviceConfig
 from sim.raycast import SceneRaycaster
@@ -184,3 +187,188 @@ def test_wrong_colour_image_size_is_an_error(sim_frame):
     sim, depth_sp, colour_sp, srgb8, _, _ = sim_frame
     with pytest.raises(ShapeError):
         rgbd_frame_from_packets(depth_sp.packet, srgb8[:-2], colour_sp.packet.T_world_from_colour, sim.calibration)
+
+
+# --- the SIMD passes against a per-point transcription ------------------------------------------------
+#
+# The kernels split the work into passes (projection of all points, z-buffer, bilinear lookups) so the
+# arithmetic compiles to SIMD code. They promise the same IEEE sequence as one plain per-point loop;
+# the loop below is that loop, written out with numpy scalars (float32 where the kernels keep float32,
+# float64 where they widen), and the results must agree bit for bit.
+
+_F64 = np.float64
+
+
+def _distort_scalar(x, y, dist):
+    """Brown distortion with the kernels' widening: x² + y² in the input's precision, the rest float64."""
+    k1, k2, p1, p2, k3 = (_F64(c) for c in dist)
+    r2 = _F64(x * x + y * y)
+    x, y = _F64(x), _F64(y)
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    return (x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y)
+
+
+def _reference_frame(points, conf, threshold, dintr, rot, trans, cintr, srgb8):
+    """Per-point loop: nearest depth pixel, closest z wins (first on a tie), bilinear linear colour."""
+    from rgbd_envmap.colour import srgb8_to_linear_lut
+
+    lut = srgb8_to_linear_lut().astype(np.float64)
+    h, w = dintr.height, dintr.width
+    depth = np.zeros((h, w), np.float32)
+    index = np.full((h, w), -1, np.int32)
+    for i, (x, y, z) in enumerate(points):
+        if not _F64(conf[i]) >= threshold or not (z > 0 and np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
+            continue
+        xd, yd = _distort_scalar(x / z, y / z, dintr.distortion.coefficients)
+        col, row = np.floor(dintr.fx * xd + dintr.cx + 0.5), np.floor(dintr.fy * yd + dintr.cy + 0.5)
+        if not (0 <= col < w and 0 <= row < h):
+            continue
+        col, row = int(col), int(row)
+        if index[row, col] < 0 or z < depth[row, col]:
+            depth[row, col], index[row, col] = z, i
+    ch, cw = cintr.height, cintr.width
+    rgb = np.zeros((h, w, 3), np.float32)
+    known = np.zeros((h, w), bool)
+    for row, col in zip(*np.nonzero(index >= 0)):
+        px, py, pz = (_F64(v) for v in points[index[row, col]])
+        x, y, z = (rot[j, 0] * px + rot[j, 1] * py + rot[j, 2] * pz + trans[j] for j in range(3))
+        if not (z > 0 and np.isfinite(x) and np.isfinite(y)):
+            continue
+        xd, yd = _distort_scalar(x / z, y / z, cintr.distortion.coefficients)
+        u, v = cintr.fx * xd + cintr.cx, cintr.fy * yd + cintr.cy
+        if not (0 <= u <= cw - 1 and 0 <= v <= ch - 1):
+            continue
+        u0, v0 = min(int(u), max(cw - 2, 0)), min(int(v), max(ch - 2, 0))
+        u1, v1 = min(u0 + 1, cw - 1), min(v0 + 1, ch - 1)
+        au, av = u - u0, v - v0
+        for c in range(3):
+            top = (1.0 - au) * lut[srgb8[v0, u0, c]] + au * lut[srgb8[v0, u1, c]]
+            bottom = (1.0 - au) * lut[srgb8[v1, u0, c]] + au * lut[srgb8[v1, u1, c]]
+            rgb[row, col, c] = np.float32((1.0 - av) * top + av * bottom)
+        known[row, col] = True
+    return depth, index, rgb, known
+
+
+def _packet_with_awkward_points(rng, n=3000):
+    pts = _random_points(rng, n)
+    m = n // 5
+    pts[rng.choice(n, m, replace=False)] = pts[rng.choice(n, m, replace=False)]  # shared pixels …
+    pts[rng.choice(n, m // 2, replace=False), 2] *= np.float32(1.0 + 1e-3)  # … with near-ties
+    bad = rng.choice(n, 60, replace=False)
+    pts[bad[:15], 0] = np.nan
+    pts[bad[15:30], 2] = -pts[bad[15:30], 2]
+    pts[bad[30:45], 2] = 0.0
+    pts[bad[45:], 1] = np.inf
+    conf = rng.uniform(0.5, 1.0, n).astype(np.float32)
+    conf[rng.choice(n, 20, replace=False)] = np.float32(0.7)  # 0.69999999: below the float64 threshold
+    return pts, conf
+
+
+def test_rgbd_frame_is_bit_identical_to_the_per_point_loop():
+    cam = CAM
+    rng = np.random.default_rng(21)
+    pts, conf = _packet_with_awkward_points(rng)
+    srgb8 = rng.integers(0, 256, (cam.height, cam.width, 3), dtype=np.uint8)
+    T_wd = RigidTransform.from_rt(np.eye(3), np.zeros(3), "world", "depth")
+    rot = RigidTransform.from_quaternion(np.array([0.03, -0.02, 0.01]), np.array([0.01, -0.02, 0.005, 1.0]))
+    T_wc = RigidTransform(rot.matrix, "world", "colour")
+    cal = Calibration("tango", TOF, cam, RigidTransform(np.linalg.inv(T_wc.matrix), "colour", "depth"))
+    packet = DepthPacket(5, pts, conf, T_wd)
+    frame, image = rgbd_frame_from_packets(packet, srgb8, T_wc, cal)
+    m = np.linalg.inv(T_wc.matrix) @ T_wd.matrix
+    depth, index, rgb, known = _reference_frame(pts, conf, 0.7, TOF, m[:3, :3], m[:3, 3], cam, srgb8)
+    assert known.sum() > 500 and (image.known & ~known).sum() > 50  # coloured, and depth-only pixels
+    np.testing.assert_array_equal(image.point_index, index)
+    np.testing.assert_array_equal(image.depth_m.view(np.uint32), depth.view(np.uint32))
+    np.testing.assert_array_equal(image.known, index >= 0)
+    np.testing.assert_array_equal(frame.known, known)
+    np.testing.assert_array_equal(frame.rgb.view(np.uint32), rgb.view(np.uint32))
+    np.testing.assert_array_equal(frame.depth_m.view(np.uint32), np.where(known, depth, np.float32(0)).view(np.uint32))
+
+
+def test_frames_are_read_only_and_equal_to_the_checked_constructor():
+    rng = np.random.default_rng(4)
+    pts, conf = _packet_with_awkward_points(rng, 1000)
+    srgb8 = rng.integers(0, 256, (CAM.height, CAM.width, 3), dtype=np.uint8)
+    T = RigidTransform.identity("world", "depth")
+    cal = Calibration("tango", TOF, CAM, RigidTransform.identity("colour", "depth"))
+    frame, _ = rgbd_frame_from_packets(DepthPacket(1, pts, conf, T), srgb8, RigidTransform.identity("world", "colour"), cal)
+    rebuilt = RGBDFrame(frame.rgb, frame.depth_m, frame.known, frame.T_world_from_cam, frame.intrinsics, frame.timestamp_ns)
+    assert frame == rebuilt and type(frame.timestamp_ns) is int
+    assert {f.name for f in dataclasses.fields(RGBDFrame)} == set(tango._FRAME_FIELDS)
+    for a in (frame.rgb, frame.depth_m, frame.known):
+        assert not a.flags.writeable
+        with pytest.raises(ValueError):
+            a[0, 0] = 0
+    filled = colour_filled_pixels(frame, frame.depth_m, frame.known, srgb8, RigidTransform.identity("colour", "depth"), CAM)
+    assert filled == frame and not filled.rgb.flags.writeable and filled.rgb is not frame.rgb
+
+
+def test_registration_is_reused_only_for_the_same_poses():
+    rng = np.random.default_rng(5)
+    pts, conf = _packet_with_awkward_points(rng, 200)
+    cal = Calibration("tango", TOF, CAM, RigidTransform.identity("colour", "depth"))
+    T_wd = RigidTransform.from_rt(np.eye(3), np.array([0.1, 0.2, 0.3]), "world", "depth")
+    T_wc = RigidTransform.from_quaternion(np.array([0.0, 0.1, 0.0]), np.array([0.0, 0.1, 0.0, 1.0]), "world", "colour")
+    packet = DepthPacket(1, pts, conf, T_wd)
+    a = colour_registration(packet, T_wc, cal)
+    assert colour_registration(packet, T_wc, cal) is a  # the same immutable poses: the same result
+    np.testing.assert_array_equal(a.matrix, np.linalg.inv(T_wc.matrix) @ T_wd.matrix)
+    assert (a.dst, a.src) == ("colour", "depth")
+    T_wc2 = RigidTransform(T_wc.matrix.copy(), "world", "colour")  # equal values, another object
+    b = colour_registration(packet, T_wc2, cal)
+    assert b is not a and b == a
+    moved = RigidTransform.from_rt(np.eye(3), np.array([0.0, 0.0, 1.0]), "world", "colour")
+    np.testing.assert_array_equal(colour_registration(packet, moved, cal).matrix,
+                                  np.linalg.inv(moved.matrix) @ T_wd.matrix)
+    assert colour_registration(packet, moved, cal, "extrinsics") is cal.T_colour_from_depth
+
+
+def test_filled_pixels_match_the_per_point_formula_and_keep_everything_else():
+    rng = np.random.default_rng(6)
+    srgb8 = rng.integers(0, 256, (CAM.height, CAM.width, 3), dtype=np.uint8)
+    known = rng.random(TOF.shape) > 0.3
+    rgb = rng.random(TOF.shape + (3,)).astype(np.float32)  # colour at unknown pixels too: kept as is
+    depth = np.where(known, rng.uniform(0.5, 3.0, TOF.shape), 0).astype(np.float32)
+    frame = RGBDFrame(rgb, depth, known, RigidTransform.identity(), TOF, 3)
+    filled_depth = rng.uniform(0.5, 3.0, TOF.shape)  # float64: rounded once to float32 where taken
+    filled_known = known | (rng.random(TOF.shape) > 0.4)
+    T = RigidTransform.from_rt(np.eye(3), np.array([0.3, 0.0, 0.0]), "colour", "depth")  # some fall outside
+    out = colour_filled_pixels(frame, filled_depth, filled_known, srgb8, T, CAM)
+    new = filled_known & ~known
+    points = pixel_rays(TOF)[new] * filled_depth[new, None]
+    colours, seen = colour_at_points(points, srgb8, T, CAM)
+    assert 0 < seen.sum() < new.sum()
+    exp_rgb = rgb.copy()
+    exp_rgb[new] = colours
+    exp_known = known.copy()
+    exp_known[new] = seen
+    exp_depth = np.where(known, depth, np.where(exp_known, filled_depth, 0.0)).astype(np.float32)
+    np.testing.assert_array_equal(out.rgb, exp_rgb)
+    np.testing.assert_array_equal(out.known, exp_known)
+    np.testing.assert_array_equal(out.depth_m.view(np.uint32), exp_depth.view(np.uint32))
+
+
+@pytest.mark.parametrize("axis", [0, 1], ids=["one column", "one row"])
+def test_one_pixel_wide_colour_image_interpolates_along_the_other_axis(axis):
+    # Points on the plane x = 0 (or y = 0) project to u = cx = 0 exactly with radial distortion only,
+    # so a 1-column image is sampled along v alone (the 2×2 collapses onto the column).
+    rng = np.random.default_rng(8)
+    n = 200
+    cam = (Intrinsics(1, 60, 70.0, 70.0, 0.0, 29.5, Distortion.radial(0.05, -0.1, 0.02)) if axis == 0 else
+           Intrinsics(80, 1, 70.0, 70.0, 39.5, 0.0, Distortion.radial(0.05, -0.1, 0.02)))
+    pts = np.zeros((n, 3))
+    pts[:, 2] = rng.uniform(0.5, 3.0, n)
+    pts[:, 1 - axis] = rng.uniform(-0.8, 0.8, n) * pts[:, 2]
+    srgb8 = rng.integers(0, 256, (cam.height, cam.width, 3), dtype=np.uint8)
+    rgb, ok = colour_at_points(pts, srgb8, RigidTransform.identity(), cam)
+    line = srgb_to_linear(srgb8.reshape(-1, 3).astype(np.float64) / 255.0)
+    uv, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), cam.K, cam.distortion.coefficients)
+    t = uv[:, 0, 1 - axis]
+    inside = (t >= 0) & (t <= len(line) - 1)
+    np.testing.assert_array_equal(ok, inside)
+    assert 20 < ok.sum() < n
+    expected = np.stack([np.interp(t[inside], np.arange(len(line)), line[:, c]) for c in range(3)], axis=1)
+    np.testing.assert_allclose(rgb[ok], expected, atol=COLOUR_TOL)
+    assert np.all(rgb[~ok] == 0)

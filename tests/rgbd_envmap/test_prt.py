@@ -263,6 +263,19 @@ def test_shade_uses_the_smaller_band_count(blob_transfer):
                                prt.shade(blob_transfer, L9, 1.0), rtol=1e-6)
 
 
+@pytest.mark.parametrize("coeff_dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("albedo", [np.array([0.6, 0.6, 0.6], np.float32), np.array([0.2, 0.5, 0.9]), 0.7,
+                                    np.float32(0.3)])
+def test_shade_weights_round_as_numpy_does(blob_transfer, coeff_dtype, albedo):
+    # The weights L_k · albedo / π are formed inside the kernel call; they must round exactly as the
+    # numpy expression does (a float32 albedo is divided by π in float32, as numpy's promotion does).
+    L = np.random.default_rng(2).normal(size=(25, 3)).astype(coeff_dtype)
+    weights = (L * (np.broadcast_to(np.asarray(albedo), (3,)) / math.pi)).astype(np.float32)
+    expected = np.empty((len(blob_transfer), 3), np.float32)
+    prt._shade_kernel(blob_transfer, np.ascontiguousarray(weights.T), 25, expected)
+    np.testing.assert_array_equal(prt.shade(blob_transfer, L, albedo), expected)
+
+
 def test_shade_out_parameter_and_empty(blob_transfer):
     L = np.ones((25, 3))
     out = np.empty((len(blob_transfer), 3), np.float32)
@@ -345,6 +358,21 @@ def test_alpha_without_light_is_zero(plane):
     L[0] = 1.0
     L[2] = -2.0  # Y_10 ∝ z: radiance negative above, positive below
     assert np.all(prt.shadow_alpha(plane, L) == 0)
+
+
+def test_alpha_matches_a_float64_reference(plane):
+    # One float32 pass instead of two BLAS products: the same values up to float32 rounding.
+    rng = np.random.default_rng(12)
+    for n in (1, 4, 9, 25):
+        L = rng.normal(size=(n, 3))
+        L[0] = np.abs(L[0]) + 1.0
+        w = L @ prt.LUMINANCE_WEIGHTS
+        e_with = plane.transfer_with[:, :n].astype(np.float64) @ w
+        e_without = plane.transfer_without[:, :n].astype(np.float64) @ w
+        tiny = max(1e-6 * math.pi * abs(w[0]) / math.sqrt(4 * math.pi), 1e-12)
+        ok = e_without > tiny
+        ref = np.where(ok, np.clip(1.0 - e_with / np.where(ok, e_without, 1.0), 0.0, 1.0), 0.0)
+        np.testing.assert_allclose(prt.shadow_alpha(plane, L), ref, rtol=0, atol=1e-5)
 
 
 def test_shadow_plane_invalid(blob):

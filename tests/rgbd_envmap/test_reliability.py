@@ -585,3 +585,76 @@ def test_nan_colour_at_known_pixel_is_unreliable_and_does_not_spread():
     rgb[2, 2, 1] = np.nan
     out = mark_reliable(rgb, np.full((5, 5), 2.0), np.ones((5, 5), bool))
     assert not out[2, 2] and out.sum() == 24
+
+
+# --------------------------------------------------------------------------------------------------
+# Kernel paths: neighbour requirements, float32 exposure
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("min_nb", [3, 4, 5, 6, 7, 8])
+def test_noise_model_verdict_for_every_neighbour_requirement(min_nb):
+    # The kernel judges a row's interior with one neighbour requirement (and skips the threshold
+    # lookup when only the 8-neighbour threshold can apply), then the first and last column with
+    # their own: compare every pixel, borders and corners included, with the reference rule.
+    rng = np.random.default_rng(min_nb)
+    z = _noisy(_slanted_wall(9, 11, 2.0, 30.0), 12)
+    z[2:6, 3:7] -= 0.2
+    known = rng.uniform(size=z.shape) > 0.15
+    ref, n_ref = _noise_model_reference(z, known)
+    need = np.minimum(min_nb, _in_image_neighbours(z.shape))
+    testable = known & (n_ref >= np.maximum(need, 3))
+    thr = chi2.isf(0.05, np.maximum(n_ref - 2, 1))
+    expected = testable & (np.nan_to_num(ref, nan=np.inf) <= thr)
+    t = discontinuity_test(z, known, min_neighbours=min_nb)
+    np.testing.assert_array_equal(t.testable, testable)
+    np.testing.assert_array_equal(t.passed, expected)
+    np.testing.assert_array_equal(mark_reliable(_grey(z.shape), z, known, min_neighbours=min_nb), expected)
+    assert 0 < expected.sum() < testable.sum() or min_nb == 8
+
+
+@pytest.mark.parametrize("min_nb", [0, 2, 5, 8])
+def test_monroy2018_verdict_for_every_neighbour_requirement(min_nb):
+    rng = np.random.default_rng(30 + min_nb)
+    z = rng.uniform(20.0, 60.0, (8, 10))
+    z[:, 5:] += 40.0
+    known = rng.uniform(size=z.shape) > 0.2
+    ref = _monroy_reference(z, known)
+    n_nb = np.array([[sum(1 for _ in _neighbours(known, r, c, False)) for c in range(10)] for r in range(8)])
+    expected = known & (n_nb >= np.minimum(min_nb, _in_image_neighbours(z.shape))) & (ref <= MONROY2018_THRESHOLD)
+    np.testing.assert_array_equal(discontinuity_test(z, known, "monroy2018", min_neighbours=min_nb).passed, expected)
+
+
+def _exposure_in_float64(rgb: np.ndarray, dark: float, bright: float) -> np.ndarray:
+    """The rule with every comparison made exactly (in float64); finiteness of the channel sum in the
+    colour's own precision (a float32 sum of channels near 3.4e38 overflows)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        finite = np.isfinite(rgb[..., 0] + rgb[..., 1] + rgb[..., 2])
+    x = rgb.astype(np.float64)
+    return finite & ~(x < dark).all(axis=-1) & ~(x > bright).all(axis=-1)
+
+
+@pytest.mark.parametrize("dark, bright", [(0.05, 0.95), (1 / 3, 2 / 3), (0.0, 1.0), (-1e300, 1e300), (1e300, -1e300),
+                                          (0.1, 0.1), (float(np.float32(0.25)), float(np.float32(0.75)))])
+def test_float32_colour_is_judged_as_its_exact_value(dark, bright):
+    # float32 colour is compared in float32 with thresholds rounded outwards; every float32 value next
+    # to a threshold must be judged as the float64 comparison judges it.
+    near = []
+    for t in (dark, bright):
+        with np.errstate(over="ignore"):
+            c = np.float32(t)
+        near += [np.nextafter(c, np.float32(-np.inf)), c, np.nextafter(c, np.float32(np.inf))]
+    values = np.array(near + [0.0, 1.0, -0.0, 3e38, -3e38, np.inf, -np.inf, np.nan], np.float32)
+    rng = np.random.default_rng(1)
+    rgb = rng.choice(values, size=(40, 50, 3)).astype(np.float32)
+    rgb[0, :3] = [3e38, 3e38, 0.5]  # the float32 sum overflows; the float64 one does not
+    z = np.full((40, 50), 2.0)
+    known = np.ones(z.shape, bool)
+    expected = _exposure_in_float64(rgb, dark, bright)
+    assert not expected.all()
+    got = mark_reliable(rgb, z, known, dark=dark, bright=bright, min_neighbours=3)
+    np.testing.assert_array_equal(got, expected & discontinuity_test(z, known, min_neighbours=3).passed)
+    np.testing.assert_array_equal(exposure_ok(rgb, dark=dark, bright=bright), expected)
+    wide = rgb.astype(np.float64)  # the same values in float64: only the overflowing sums differ
+    np.testing.assert_array_equal(mark_reliable(wide, z, known, dark=dark, bright=bright, min_neighbours=3),
+                                  _exposure_in_float64(wide, dark, bright) & discontinuity_test(z, known, min_neighbours=3).passed)
