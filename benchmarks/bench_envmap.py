@@ -2,14 +2,20 @@
 "Collect paired samples", "Compute colour correction matrix", "Calculate MSE", "Project sample to EM"
 and the §6.2 translation), the current kernels side by side with the previous ones.
 
-    python benchmarks/bench_envmap.py [--repeats N] [--session S] [--json PATH]
+    python benchmarks/bench_envmap.py [--repeats N] [--session S] [--recorded PATH] [--recorded-rounds R]
+                                      [--only-recorded] [--json PATH]
 
 1. One frame: a 4.2 s capture of the default scene warms the map up; the timed frame is the next.
 2. A session (``--session``, default 20 s of the default orbit; 0 skips it): every pairs and
    update call of a default capture is run by the current library and, on a mirror map fed the
    same inputs, by the previous kernels; per-frame median and p95 of each, and whether the two
    final maps are identical bit for bit.
-3. Translation by 10 cm of the 4.2 s map (23 % covered), of the session's final map (89 %) and of
+3. The recorded session (``--recorded``, default ``runs/default/session``, written by ``bash
+   main.sh``; skipped when missing): the capture inputs of every depth frame as the pipeline makes
+   them, replayed ``--recorded-rounds`` times; the stages "Collect paired samples" and "Project
+   sample to EM*" exactly as ``capture.process`` times them, and the ``update`` call alone, beside
+   the previous kernels with the previous numpy gathers on a mirror map; bit-identity of the maps.
+4. Translation by 10 cm of the 4.2 s map (23 % covered), of the session's final map (89 %) and of
    the ray-cast true map (everything covered).
 
 Each pair of rows is timed alternately in the same run (the machine is shared and noisy). Single
@@ -20,6 +26,7 @@ below, in this script and not in the library, only to time them here.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -32,13 +39,18 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+import cv2  # noqa: E402
+
 import rgbd_envmap.capture as capture_module  # noqa: E402
+from apps.replay import default_origin  # noqa: E402
 from benchmarks.eval_envmap import ingested_frames  # noqa: E402
 from rgbd_envmap.capture import CaptureConfig, EnvironmentCapture  # noqa: E402
 from rgbd_envmap.colour import apply_ccm, estimate_ccm  # noqa: E402
+from rgbd_envmap.depth.reliability import discontinuity_test  # noqa: E402
 from rgbd_envmap.envmap import (  # noqa: E402
     EnvironmentMap,
     UpdateConfig,
+    _frame_pairs,
     collect_pairs,
     frame_points,
     rule_closer,
@@ -48,6 +60,9 @@ from rgbd_envmap.envmap import (  # noqa: E402
     translate,
     update,
 )
+from rgbd_envmap.logs import SessionLog  # noqa: E402
+from rgbd_envmap.pipeline import Pipeline, PipelineConfig  # noqa: E402
+from rgbd_envmap.timing import StageTimer  # noqa: E402
 from sim.colour_camera import ColourCameraConfig  # noqa: E402
 from sim.device import TangoDeviceConfig  # noqa: E402
 from sim.groundtruth import render_envmap  # noqa: E402
@@ -462,6 +477,15 @@ def one_frame(sim, frames, r: int, rows: dict) -> EnvironmentMap:
         f"pairs+matrix+mse, {n_rel} reliable pts": lambda: pmm(collect_pairs, pts_rel, col_rel),
         f"  previous kernels, {n_rel} reliable pts": lambda: pmm(old_collect_pairs, pts_rel, col_rel),
     }, r))
+    # What the pipeline's stage "Collect paired samples" runs: from the frame, not from points and
+    # colours gathered beforehand (the rows above leave out frame_points and the boolean gather of
+    # raw.rgb[reliable], 0.2 + 1.1 ms of the previous stage on session frames).
+    rows.update(time_alternating({
+        f"Collect paired samples as capture runs it ({n_rel} reliable px)": lambda: _frame_pairs(
+            em, raw.depth_m, res.reliable, raw.intrinsics, raw.T_world_from_cam, raw.rgb),
+        "  previous: frame_points + rgb[reliable] + previous kernel": lambda: old_collect_pairs(
+            em, frame_points(raw.depth_m, res.reliable, raw.intrinsics, raw.T_world_from_cam), raw.rgb[res.reliable]),
+    }, r))
     rows.update(time_alternating({
         "  of which collect_pairs (all pts)": lambda: collect_pairs(em, pts_all, col_all),
         "  of which estimate_ccm ridge": lambda: estimate_ccm(src, dst, method="ridge"),
@@ -486,7 +510,7 @@ def session(sim_factory, seconds: float, rows: dict) -> EnvironmentMap:
     old_update = OldUpdater(mirror)
     ms = {k: [] for k in ("update new", "update old", "pairs new", "pairs old")}
     cpu = {k: [] for k in ms}
-    new_update, new_pairs = capture_module.update, capture_module.collect_pairs
+    new_update, new_pairs = capture_module.update, capture_module._frame_pairs
     state = {"i": 0}
 
     def timed(name, fn):
@@ -505,29 +529,150 @@ def session(sim_factory, seconds: float, rows: dict) -> EnvironmentMap:
         return both(lambda: timed("update new", lambda: new_update(em, pts, col, dev, focal, config, fill_only)),
                     lambda: timed("update old", lambda: old_update(pts, col, dev, focal, config, fill_only)))
 
-    def pairs_both(em, pts, col, max_diff):
-        def run(name, pairs, m):
+    def pairs_both(em, depth, mask, intrinsics, T, rgb, max_diff):
+        def run(name, pairs):
             def f():
-                s, d = pairs(m, pts, col, max_diff)
+                s, d = pairs()
                 estimate_ccm(s, d, method=cap.config.ccm_method)
                 return s, d
             return timed(name, f)
-        return both(lambda: run("pairs new", new_pairs, em), lambda: run("pairs old", old_collect_pairs, mirror))
+        # As capture.process collects them: from the frame (points and colours of the reliable pixels).
+        return both(lambda: run("pairs new", lambda: new_pairs(em, depth, mask, intrinsics, T, rgb, max_diff)),
+                    lambda: run("pairs old", lambda: old_collect_pairs(mirror, frame_points(depth, mask, intrinsics, T),
+                                                                       rgb[mask], max_diff)))
 
-    capture_module.update, capture_module.collect_pairs = update_both, pairs_both
+    capture_module.update, capture_module._frame_pairs = update_both, pairs_both
     try:
         for _, res in ingested_frames(sim, seconds):
             cap.process(res.frame, res.reliable, res.filled)
     finally:
-        capture_module.update, capture_module.collect_pairs = new_update, new_pairs
+        capture_module.update, capture_module._frame_pairs = new_update, new_pairs
     n = len(ms["update new"])
     # The first frame (the reference, into an empty map) is left out of the update rows.
     rows[f"session {seconds:.0f} s: EM update per frame ({n} frames)"] = _stats(ms["update new"][1:], cpu["update new"][1:])
     rows["  previous kernel, same frames"] = _stats(ms["update old"][1:], cpu["update old"][1:])
-    rows[f"session {seconds:.0f} s: pairs+matrix+mse per frame (reliable pts)"] = _stats(ms["pairs new"], cpu["pairs new"])
+    rows[f"session {seconds:.0f} s: pairs (from the frame)+matrix+mse per frame"] = _stats(ms["pairs new"], cpu["pairs new"])
     rows["  previous kernels, same frames"] = _stats(ms["pairs old"], cpu["pairs old"])
     print(f"session {seconds:.0f} s: final maps of the current and previous kernels identical: {_maps_equal(cap.em, mirror)}; "
           f"coverage {cap.em.valid.mean():.3f}")
+    return cap.em
+
+
+def capture_inputs(root: Path) -> tuple[np.ndarray, CaptureConfig, list] | None:
+    """Every ``EnvironmentCapture.process`` call of the recorded session at ``root``, replayed through
+    the pipeline (rendering off): (origin, capture config, [(raw, reliable, filled)]); None when there
+    is no session (``bash main.sh`` writes ``runs/default/session``)."""
+    if not (root / "calibration.json").is_file():
+        return None
+    log = SessionLog.open(root)
+    cfg = PipelineConfig()
+    cfg = dataclasses.replace(cfg, render=dataclasses.replace(cfg.render, enabled=False))
+    origin = default_origin(log)
+    pipe = Pipeline(cfg, log.calibration, origin)
+    calls = []
+    real = EnvironmentCapture.process
+
+    def record(self, raw, reliable, filled, *, timer=None):
+        calls.append((raw, reliable.copy(), filled))
+        return real(self, raw, reliable, filled, timer=timer)
+
+    EnvironmentCapture.process = record
+    try:
+        for packet in log:
+            pipe.feed(packet)
+    finally:
+        EnvironmentCapture.process = real
+    return origin, pipe.capture.config, calls
+
+
+def previous_process(state: dict, old_update: OldUpdater, raw, reliable, filled, cfg: CaptureConfig, ms: dict) -> None:
+    """``capture.process`` as it was before the kernels above were replaced: the previous kernels
+    and the numpy boolean gathers of points and colours; the stages timed into ``ms``."""
+    em = old_update.em
+
+    def project(matrix):
+        t0 = time.perf_counter()
+        mask = filled.known  # filled_pixels "all"
+        pts = frame_points(filled.depth_m, mask, filled.intrinsics, filled.T_world_from_cam)
+        colours = apply_ccm(filled.rgb[mask], matrix)
+        focal = 0.5 * (filled.intrinsics.fx + filled.intrinsics.fy)
+        plane = discontinuity_test(filled.depth_m, filled.known).passed
+        k = 2 * int(cfg.edge_margin_px) + 1
+        fill_only = cv2.dilate((filled.known & ~plane).astype(np.uint8), np.ones((k, k), np.uint8)).astype(bool)[mask]
+        t1 = time.perf_counter()
+        old_update(pts, colours, filled.T_world_from_cam.translation, focal, cfg.update, fill_only)
+        t2 = time.perf_counter()
+        ms["update old"].append((t2 - t1) * 1e3)
+        ms["project old"].append((t2 - t0) * 1e3)
+
+    if not state["reference"]:
+        if filled.known.any():
+            state["reference"] = True
+            project(np.eye(3))
+        return
+    t0 = time.perf_counter()
+    src, dst = old_collect_pairs(em, frame_points(raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam),
+                                 raw.rgb[reliable], cfg.pair_max_depth_diff_m)
+    ms["pairs old"].append((time.perf_counter() - t0) * 1e3)
+    ccm = estimate_ccm(src, dst, method=cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs)
+    if ccm.accepted:
+        project(np.array(ccm.matrix, dtype=np.float64))
+
+
+def recorded_session(root: Path, rows: dict, rounds: int) -> EnvironmentMap | None:
+    """The capture stages per depth frame of the recorded session, as ``capture.process`` times them
+    inside the pipeline ("Collect paired samples", "Project sample to EM*") and the ``update`` call
+    alone; beside them, on a mirror map fed the same frames, the previous kernels with the previous
+    Python-side gathers. Frames alternate which goes first; ``rounds`` replays of the session."""
+    data = capture_inputs(root)
+    if data is None:
+        print(f"recorded session: none at {root} (bash main.sh writes it); skipped")
+        return None
+    origin, cfg, calls = data
+    if cfg.filled_pixels != "all" or cfg.edge_margin_px is None or not cfg.colour_correction or cfg.freeze:
+        raise SystemExit("recorded session: the previous path here assumes the default capture config")
+    ms = {k: [] for k in ("project new", "update new", "pairs new", "project old", "update old", "pairs old")}
+    new_update = capture_module.update
+    same = True
+    for _ in range(rounds):
+        cap = EnvironmentCapture(origin, cfg)
+        timer = StageTimer()
+        old_update = OldUpdater(EnvironmentMap(cfg.height, cfg.width, origin))
+        state = {"reference": False}
+
+        def timed_update(*a, **k):
+            t0 = time.perf_counter()
+            out = new_update(*a, **k)
+            ms["update new"].append((time.perf_counter() - t0) * 1e3)
+            return out
+
+        capture_module.update = timed_update
+        try:
+            for i, (raw, reliable, filled) in enumerate(calls):
+                for current in ((True, False) if i % 2 else (False, True)):
+                    if current:
+                        timer.begin("depth")
+                        cap.process(raw, reliable, filled, timer=timer)
+                    else:
+                        previous_process(state, old_update, raw, reliable, filled, cfg, ms)
+        finally:
+            capture_module.update = new_update
+        ms["project new"] += [r.ms for r in timer.records if r.stage == "Project sample to EM*"]
+        ms["pairs new"] += [r.ms for r in timer.records if r.stage == "Collect paired samples"]
+        same &= _maps_equal(cap.em, old_update.em)
+    n = len(calls)
+    # The reference frame (into an empty map) is left out of the projection rows.
+
+    def skip(a):
+        return a[1:] if len(a) == n * rounds else a
+
+    rows[f"recorded session ({n} frames): Project sample to EM* per frame"] = _stats(skip(ms["project new"]))
+    rows["  previous kernels and gathers"] = _stats(skip(ms["project old"]))
+    rows["recorded session: of which update()"] = _stats(skip(ms["update new"]))
+    rows["  previous update kernel"] = _stats(skip(ms["update old"]))
+    rows["recorded session: Collect paired samples per frame"] = _stats(ms["pairs new"])
+    rows["  previous kernel and gathers "] = _stats(ms["pairs old"])
+    print(f"recorded session {root}: final maps of the current and previous code identical in every round: {same}")
     return cap.em
 
 
@@ -548,8 +693,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=50)
     parser.add_argument("--session", type=float, default=20.0, help="seconds of the session part (0: skip it)")
+    parser.add_argument("--recorded", type=Path, default=Path("runs/default/session"),
+                        help="recorded session for the capture-stage rows (skipped when missing)")
+    parser.add_argument("--recorded-rounds", type=int, default=2, help="replays of the recorded session (0: skip it)")
+    parser.add_argument("--only-recorded", action="store_true", help="the recorded-session rows only")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
+    if args.only_recorded:
+        rows: dict[str, dict] = {}
+        recorded_session(args.recorded, rows, max(1, args.recorded_rounds))
+        print_rows(rows)
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=2) + "\n")
+        return
 
     def make_sim():
         return Simulator(load_scene("office"), load_trajectory("orbit"),
@@ -563,6 +719,8 @@ def main() -> None:
     maps = {"4.2 s map": em4}
     if args.session > 0:
         maps[f"{args.session:.0f} s map"] = session(make_sim, args.session, rows)
+    if args.recorded_rounds > 0:
+        recorded_session(args.recorded, rows, args.recorded_rounds)
     origin = sim.scene.virtual_object_position
     gt = render_envmap(sim.raycaster, origin, 1000, 2000, 0.0)
     maps["true map"] = EnvironmentMap.from_arrays(gt.radiance, gt.distance_m, gt.valid, origin)

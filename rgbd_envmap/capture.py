@@ -35,7 +35,14 @@ import numpy as np
 from rgbd_envmap.checks import check_method
 from rgbd_envmap.colour import CCMResult, apply_ccm, estimate_ccm
 from rgbd_envmap.depth.reliability import discontinuity_test
-from rgbd_envmap.envmap import EnvironmentMap, UpdateConfig, UpdateStats, collect_pairs, frame_points, update
+from rgbd_envmap.envmap import (
+    EnvironmentMap,
+    UpdateConfig,
+    UpdateStats,
+    _frame_pairs,
+    _frame_samples,
+    update,
+)
 from rgbd_envmap.timing import StageTimer
 from rgbd_envmap.types import RGBDFrame
 
@@ -136,10 +143,9 @@ class EnvironmentCapture:
             stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t)
             return CaptureStep(ts, False, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
         with t.stage("Collect paired samples"):
-            src, dst = collect_pairs(
-                self.em, frame_points(raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam), raw.rgb[reliable],
-                cfg.pair_max_depth_diff_m,
-            )
+            # collect_pairs(em, frame_points(raw.depth_m, reliable, …), raw.rgb[reliable]) in one pass.
+            src, dst = _frame_pairs(self.em, raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam, raw.rgb,
+                                    cfg.pair_max_depth_diff_m)
         with t.stage("Compute colour correction matrix"):
             ccm = estimate_ccm(src, dst, method=cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs)
         if not ccm.accepted:
@@ -166,13 +172,15 @@ class EnvironmentCapture:
 
     def _project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray) -> UpdateStats:
         mask = self.projected_mask(raw, frame)
-        pts = frame_points(frame.depth_m, mask, frame.intrinsics, frame.T_world_from_cam)
-        colours = apply_ccm(frame.rgb[mask], matrix)
-        focal = 0.5 * (frame.intrinsics.fx + frame.intrinsics.fy)
-        fill_only = None
+        near_edge = None
         if self.config.edge_margin_px is not None:
             plane = discontinuity_test(frame.depth_m, frame.known).passed
-            edge = (frame.known & ~plane).astype(np.uint8)
+            edge = (frame.known & ~plane).view(np.uint8)
             k = 2 * int(self.config.edge_margin_px) + 1
-            fill_only = cv2.dilate(edge, np.ones((k, k), np.uint8)).astype(bool)[mask]
-        return update(self.em, pts, colours, frame.T_world_from_cam.translation, focal, self.config.update, fill_only)
+            near_edge = cv2.dilate(edge, np.ones((k, k), np.uint8))
+        # frame_points(frame.depth_m, mask, …), frame.rgb[mask] and near_edge[mask] in one pass.
+        pts, rgb, fill_only = _frame_samples(frame.depth_m, mask, frame.intrinsics, frame.T_world_from_cam, frame.rgb, near_edge)
+        colours = apply_ccm(rgb, matrix)
+        focal = 0.5 * (frame.intrinsics.fx + frame.intrinsics.fy)
+        return update(self.em, pts, colours, frame.T_world_from_cam.translation, focal, self.config.update,
+                      None if near_edge is None else fill_only)

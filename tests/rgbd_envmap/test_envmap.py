@@ -313,10 +313,11 @@ def test_fill_only_samples_still_obey_the_trusted_sphere():
 
 
 # --- the kernels against plain per-sample / per-pixel references ---------------------------------
-# The kernels are restructured for speed (blocked coordinates, branch-free 2×2 footprints, a packed
-# z-buffer cleared sparsely, row-streamed translation with an integer-key z-buffer). These
+# The kernels are restructured for speed (blocked coordinates, a band z-buffer of keys merged with
+# min in any order, row-streamed translation with an integer-key z-buffer). These
 # references follow the documented rules one sample and one pixel at a time, in plain Python, and
-# share only the per-point coordinate formulas with the library, so the comparisons are exact.
+# share only the per-point coordinates with the library (its compiled coordinate function), so the
+# comparisons are exact.
 
 
 def _ref_span(x, half, limit):
@@ -327,20 +328,23 @@ def _ref_span(x, half, limit):
 def _reference_update(em, pts, cols, device, focal, config, fill_only=None):
     import math
 
-    from rgbd_envmap.envmap import _atan2_branchless, _trig_tables
+    from rgbd_envmap.envmap import _block_coords, _trig_tables
 
     h, w = em.height, em.width
     row_px, col_px = h / math.pi, w / (2 * math.pi)
+    # Each point's (v, u) and distance as the kernel computes them (the same compiled function, so
+    # the same bits: the tests below on equal float32 distances depend on the last bit of r).
+    n = len(pts)
+    bx, by, bz, bv, bu, br = (np.empty(max(n, 1)) for _ in range(6))
+    _block_coords(np.ascontiguousarray(pts, np.float64), 0, n, *em.origin, row_px, col_px, bx, by, bz, bv, bu, br)
     zbuf = {}
     for i, (p, c) in enumerate(zip(pts, cols)):
         if not (np.isfinite(p).all() and np.isfinite(c).all()):
             continue
-        dx, dy, dz = p - em.origin
+        dx, dy, r, v, u = bx[i], by[i], br[i], bv[i], bu[i]
         hh = math.sqrt(dx * dx + dy * dy)
-        r = math.sqrt(hh * hh + dz * dz)
         if not (r > 0 and np.float32(r) < np.inf):
             continue
-        v, u = _atan2_branchless(hh, dz) * row_px, (_atan2_branchless(dy, dx) + math.pi) * col_px
         row, col = min(int(v), h - 1), int(u) % w
         r0, r1, c0, c1 = row, row, col, col
         if config.splat:
@@ -410,11 +414,107 @@ def test_update_kernel_equals_the_per_sample_reference(splat):
         np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
     # Every rule fired, and some pixels were refused (the last device is inside the trusted sphere).
     assert (fired > 0).all()
-    # The scratch is clean again: the z-buffer was cleared at the pixels touched, the spans reset.
+    # The scratch is clean again: the band z-buffer was cleared where touched, the tile flags reset.
     from rgbd_envmap.envmap import _EMPTY_Z
 
-    zw, row_lo, row_hi = em_k._update_scratch()
-    assert (zw == _EMPTY_Z).all() and (row_lo == w).all() and (row_hi == -1).all()
+    zband, tiles = em_k._update_scratch()[:2]
+    assert (zband == _EMPTY_Z).all() and not tiles.any()
+
+
+@pytest.mark.parametrize("splat", [True, False])
+def test_update_equal_float32_distances_keep_what_a_sequential_z_test_keeps(splat):
+    # The kernel merges z-buffer keys with min in any order; a sequential test replaces the stored
+    # sample when the new float64 distance is below the stored float32 one. On equal float32
+    # distances that keeps the last sample rounded up (r < float32(r)) or else the first: every
+    # order of such samples must give the reference's winner (its colour) and counts.
+    import itertools
+
+    d = np.array([0.8, 0.3, -0.52])
+    d /= np.linalg.norm(d)
+    g = 2.0  # a float32; ulp 2.4e-7
+    # Within half an ulp of 2 (5.96e-8 below, 1.19e-7 above): all round to 2; the last is one float32 up.
+    dist = [g - 5e-8, g + 9e-8, g, g - 2e-8, g + 4e-8, g + 5e-7]
+    cfg = UpdateConfig(splat=splat, max_splat_px=4)
+    for order in itertools.islice(itertools.permutations(range(len(dist))), 0, None, 37):
+        pts = np.array([d * dist[i] for i in order])
+        cols = np.array([[i / 8, 1 - i / 8, 0.5] for i in order], np.float32)
+        fill_only = np.array([i % 2 == 1 for i in order])
+        for pre in (None, 2.5):  # an empty map (rule "empty"), and one holding a farther surface
+            em_k, em_r = EnvironmentMap(H, W), EnvironmentMap(H, W)
+            if pre is not None:
+                for em in (em_k, em_r):
+                    em.valid[:] = True
+                    em.depth_m[:] = pre
+            stats = update(em_k, pts, cols, np.array([0.0, 0.0, 1.0]), FOCAL, cfg, fill_only)
+            touched, counts = _reference_update(em_r, pts, cols, np.array([0.0, 0.0, 1.0]), FOCAL, cfg, fill_only)
+            assert stats.touched == touched
+            assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal) == tuple(counts.values())
+            np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
+            np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
+
+
+def test_removal_rule_near_the_edge_of_its_cone():
+    # The kernel evaluates the removal rule only in rows within asin(removal_r / |device|) (plus two
+    # rows) of the device's direction. Samples on rays at angles around that bound, behind stored
+    # surfaces (so only removal can take them), from devices in several directions.
+    rng = np.random.default_rng(11)
+    h, w = 120, 240
+    cfg = UpdateConfig(splat=False, removal_radius_m=0.05)
+    fired = 0
+    for device in ([0.3, 0.1, 0.25], [0.0, 0.05, -0.4], [-0.2, -0.3, 0.02], [0.0, 0.0, 0.35]):
+        device = np.array(device)
+        dev_dir = device / np.linalg.norm(device)
+        cone = np.arcsin(0.05 / np.linalg.norm(device))
+        axis = np.cross(dev_dir, [0.3, 0.5, 0.8])
+        axis /= np.linalg.norm(axis)
+        pts = []
+        for angle in np.linspace(0.0, 1.6 * cone, 40):
+            for turn in np.linspace(0.0, 2 * np.pi, 24, endpoint=False):
+                # rotate dev_dir by `angle` about an axis turned by `turn` around dev_dir
+                a = np.cos(turn) * axis + np.sin(turn) * np.cross(dev_dir, axis)
+                ray = dev_dir * np.cos(angle) + np.cross(a, dev_dir) * np.sin(angle)
+                pts.append(ray * rng.uniform(1.2, 2.0))
+        pts = np.array(pts)
+        cols = rng.random((len(pts), 3)).astype(np.float32)
+        em_k, em_r = EnvironmentMap(h, w), EnvironmentMap(h, w)
+        for em in (em_k, em_r):
+            em.valid[:] = True
+            em.depth_m[:] = 1.0  # every sample is farther: only the removal rule can take it
+        stats = update(em_k, pts, cols, device, FOCAL, cfg)
+        touched, counts = _reference_update(em_r, pts, cols, device, FOCAL, cfg)
+        assert stats.touched == touched and stats.taken_removal == counts["removal"]
+        assert 0 < counts["removal"] < touched
+        fired += counts["removal"]
+        np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
+        np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
+    assert fired > 0
+
+
+def test_fused_frame_samples_and_pairs_equal_the_separate_calls():
+    from rgbd_envmap.envmap import _frame_pairs, _frame_samples, frame_points
+    from rgbd_envmap.geometry import look_at
+    from rgbd_envmap.types import Intrinsics
+
+    rng = np.random.default_rng(12)
+    intr = Intrinsics(40, 30, 35.0, 36.0, 19.5, 14.5)
+    T = look_at([0.1, -0.2, 0.05], [2.0, 0.5, 0.3])
+    depth = rng.uniform(0.5, 3.0, intr.shape).astype(np.float32)
+    depth[rng.random(intr.shape) < 0.05] = np.nan
+    mask = rng.random(intr.shape) < 0.8
+    rgb = rng.random((*intr.shape, 3)).astype(np.float32)
+    flag = rng.random(intr.shape) < 0.3
+    pts, col, fo = _frame_samples(depth, mask, intr, T, rgb, flag)
+    np.testing.assert_array_equal(pts, frame_points(depth, mask, intr, T))
+    np.testing.assert_array_equal(col, rgb[mask])
+    np.testing.assert_array_equal(fo, flag[mask])
+    assert not _frame_samples(depth, mask, intr, T, rgb)[2].any()
+    em = EnvironmentMap(H, W)
+    update(em, frame_points(depth, np.ones(intr.shape, bool), intr, T), rgb.reshape(-1, 3), np.zeros(3), FOCAL)
+    src, dst = _frame_pairs(em, depth, mask, intr, T, rgb, 0.05)
+    ref_src, ref_dst = collect_pairs(em, pts, rgb[mask], 0.05)
+    assert len(src) > 100
+    np.testing.assert_array_equal(src, ref_src)
+    np.testing.assert_array_equal(dst, ref_dst)
 
 
 def _reference_translate(em, offset, max_splat_px=8, max_rel_jump=0.2):
