@@ -24,7 +24,7 @@ shadows and on dark or shiny surfaces. Knecht et al. reuse the previous frames i
    edge still contributes the half on the other side. A pixel takes the weight of the nearest vertex
    (largest barycentric coordinate) of the winning triangle: weights are counts and are copied, not
    blended, as in the paper. The rim vertices of every surface are also splatted onto their nearest
-   pixel when no triangle covers it (see :func:`_rim_splat`), so that sub-pixel motion does not shave
+   pixel when no triangle covers it (see :func:`_rim_row`), so that sub-pixel motion does not shave
    a row off the history at every boundary every other frame.
 2. **Merge** (:func:`merge_depth`). Where both the warped and the new depth are valid and agree,
    a running average with capped weights, as in KinectFusion (Newcombe et al. 2011):
@@ -83,6 +83,8 @@ References:
 from __future__ import annotations
 
 import math
+import sys
+from collections import namedtuple
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -170,38 +172,81 @@ def _check_merge_params(max_weight: float, threshold: float, threshold_abs_m: fl
 # --------------------------------------------------------------------------------------------------
 #
 # Data layout. A depth map enters the kernels "clean": float32 z-depth with 0 wherever the pixel is
-# unknown or not finite and > 0. Camera-frame points live in zero-padded float32 planes
-# P (3, H+2, W+2) (X, Y, Z; Z = 0 marks an invalid pixel and the border), so neighbour tests need no
-# bounds checks and the stretch test of an edge to an invalid vertex fails by itself
-# (min(z_a, z_b) = 0). Warped vertices are V (3, H, W) float64: screen x, screen y and 1/z in the
-# current view (1/z = 0: invalid), computed from the clean depth in float64 so that an identity warp is
-# exact. Quad codes sit in a zero-padded (H+1, W+1) uint8 array, quad (v, u) at [v+1, u+1].
+# unknown or not finite and > 0. Camera-frame points (float32 x, y, z from float32 rays) exist only in
+# a ring of three rows and a zero row inside the merge / normals kernels; a zero point (unknown, or
+# outside the image) fails every stretch test by itself (min(z_a, z_b) = 0). The merge leaves the
+# edge flags of the map it produced in E (4, H, W) bool (edge right, down, diagonal, anti-diagonal
+# usable), which is all the next warp needs of the previous view's geometry.
+#
+# Warp (:func:`_warp_kernel`): one pass over the rows with a ring of three vertex rows and two quad
+# rows; nothing image-sized is written but the z-buffer. A vertex is kept as its pixel cell
+# ceil(x − ε), ceil(y − ε) (whole numbers in float32) and the offset of its position from that cell,
+# with z and 1/z (float32). Without distortion the offset comes from the vertex's displacement from its
+# own pixel centre, computed in float32 with an error relative to the motion (~1e-7 px per pixel of
+# motion; exactly 0 for no motion); with distortion the position is projected in float64.
 #
 # Rasterisation. Pixel centres are enumerated half-open, [x_min − ε, x_max − ε) × [y_min − ε,
 # y_max − ε) per quad, so a pixel centre on a shared vertex or edge is tried by one quad only (under
-# an identity warp every quad holds exactly its top-left pixel); the barycentric test itself is
-# inclusive (−1e-7). A first, branch-free pass (vectorised by LLVM) resolves every quad whose box holds
-# one pixel centre — nearly all of them for frame-to-frame motion — and a scalar pass z-buffers those
-# results and rasterises the rest in full. Pixel centres on the outer boundary of a surface are caught
-# by splatting the rim vertices (:func:`_rim_splat`).
+# an identity warp every quad holds exactly its top-left pixel). Since ceil is monotonic, a quad's box
+# is the min / max of its vertices' cells, the same for every quad that shares a vertex. A branch-free
+# float32 pass (8 lanes) resolves every quad whose box holds one pixel centre — 97–99 % of them for
+# frame-to-frame motion — with barycentrics from positions relative to that pixel centre, (cell −
+# pixel) + offset, within ~1e-7 px of the exact ones whatever the motion (inclusive test, tolerance
+# 2e-6). The rest — several candidate pixels, a quad folded over itself, or a triangle of less than
+# 1/32 px² — go to a float64 rasteriser. The z-buffer holds (weight, z) float32 pairs that read as one
+# uint64 with z in the high half; a positive float orders like its bits, so z-buffering the one-pixel
+# results is a branch-free integer min. Pixel centres on the outer boundary of a surface are caught by
+# splatting the rim vertices (:func:`_rim_row`), after the last row, since any triangle may still
+# cover their pixel.
 #
 # Speed notes (this 2-core machine, measured in benchmarks/bench_kinect.py): LLVM does not vectorise a
-# loop that writes an array passed in from outside while reading others (it cannot rule out
-# aliasing), so outputs handed to the caller are allocated inside the kernels and persistent scratch is
-# written through small per-row buffers; and image-sized scratch allocated and freed on every call
-# costs page faults on every call (about 10 ms for 12 MB here), so it lives in a :class:`_Workspace`
-# that :class:`KinectMerger` keeps between frames.
+# loop that writes several arrays while reading others when it cannot rule out aliasing (too many
+# runtime checks), so hot loops write few arrays, outputs handed to the caller are allocated inside
+# the kernels, and per-row scratch lives in small local buffers; numba widens integer arithmetic to
+# 64 bits, so the 8-lane float32 loops keep flags as bools and cells as float32; image-sized scratch
+# allocated and freed on every call costs page faults on every call (about 10 ms for 12 MB here), so
+# it lives in a :class:`_Workspace` that :class:`KinectMerger` keeps between frames.
 
 _NJ = {"cache": True, "error_model": "numpy"}
+
+# The warp's ring of three vertex rows (see :func:`_warp_kernel`): pixel cells of the screen positions,
+# the offsets from them, z and 1/z (float32); quad codes of two quad rows (uint8, zero-bordered) and
+# their split / drawn-triangle flags.
+_Ring = namedtuple("_Ring", "CX CY FX FY Z IZ C A TA TB")
 
 # Triangles of the quad with corners 00 = (v, u), 01 = (v, u+1), 10 = (v+1, u), 11 = (v+1, u+1):
 # bit 0: 00-01-10 and bit 1: 01-11-10 (split along 01–10); bit 2: 00-01-11 and bit 3: 00-11-10
 # (split along 00–11). Masks of the triangles that use each corner:
 _USES_00, _USES_01, _USES_10, _USES_11 = 13, 7, 11, 14
-# Per-quad 1/z of the vectorised pass meaning "rasterise this quad in full".
-_SLOW = -1.0
+# Rim splats: the lowest set bit of a 4-bit mask, and for a vertex that is corner 00, 01, 10, 11 of
+# quad q = 0 … 3 ((v, u), (v, u−1), (v−1, u), (v−1, u−1)), the other two vertices of triangle ``bit``
+# of that quad as (dv, du, dv, du) relative to the vertex.
+_LOWBIT = np.array([0, 0, 1, 0, 2, 0, 1, 0, 3, 0, 1, 0, 2, 0, 1, 0], np.int64)
+
+
+def _rim_triangles() -> np.ndarray:
+    tris = ((0, 1, 2), (1, 3, 2), (0, 1, 3), (0, 3, 2))  # corners 0 = 00, 1 = 01, 2 = 10, 3 = 11
+    table = np.zeros((4, 4, 4), np.int64)
+    for q in range(4):  # the vertex is corner q of quad q, whose origin is (−(q >> 1), −(q & 1)) from it
+        for bit, corners in enumerate(tris):
+            if q in corners:
+                others = [c for c in corners if c != q]
+                table[q, bit] = [d for c in others for d in ((c >> 1) - (q >> 1), (c & 1) - (q & 1))]
+    return table
+
+
+_RIM_TRI = _rim_triangles()
 # Half-open shift of the pixel-centre enumeration, pixels.
 _ENUM_EPS = 1e-6
+# Vertex pixel cells beyond ±this are "far off-screen" (whole numbers stay exact in float32).
+_CELL_LIM = float(1 << 22)
+# One-pixel pass in float32 pixel-relative coordinates (errors ≲ 1e-7 px): its barycentric tolerance,
+# and the smallest |2 · area| (px²) of a triangle it handles; thinner ones go to the float64 rasteriser.
+_BARY_EPS32 = np.float32(2e-6)
+_AREA_MIN32 = np.float32(1.0 / 16.0)
+# The z-buffer holds (weight, z) float32 pairs; read as one uint64, z is the high half.
+_ZI, _WI = (1, 0) if sys.byteorder == "little" else (0, 1)
+_EMPTY_KEY = np.uint64(0x7F800000 << 32)  # z = +inf, weight 0
 
 
 @numba.njit(**_NJ)
@@ -216,26 +261,6 @@ def _clean_depth(depth, known):  # pragma: no cover - compiled
     return out
 
 
-@numba.njit(**_NJ)
-def _points_into(depth, rays, use_table, rx, ry, P):  # pragma: no cover - compiled
-    """Point planes of a clean depth map into the interior of the zero-bordered float32 ``P``."""
-    h, w = depth.shape
-    for v in range(h):
-        if use_table:
-            for u in range(w):
-                d = np.float64(depth[v, u])
-                P[0, v + 1, u + 1] = np.float32(rays[v, u, 0] * d)
-                P[1, v + 1, u + 1] = np.float32(rays[v, u, 1] * d)
-                P[2, v + 1, u + 1] = depth[v, u]
-        else:
-            yr = ry[v]
-            for u in range(w):
-                d = np.float64(depth[v, u])
-                P[0, v + 1, u + 1] = np.float32(rx[u] * d)
-                P[1, v + 1, u + 1] = np.float32(yr * d)
-                P[2, v + 1, u + 1] = depth[v, u]
-
-
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def _edge_ok(xa, ya, za, xb, yb, zb, k2):  # pragma: no cover - compiled
     """3-D edge a–b at most √k2 · min(za, zb) long; False when either end is invalid (z = 0)."""
@@ -248,7 +273,7 @@ def _edge_ok(xa, ya, za, xb, yb, zb, k2):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def _vertex(x, y, pz, r, t, cam, dist, has_dist, near):  # pragma: no cover - compiled
-    """Screen x, y and 1/z (0: invalid) of the point z · (x, y, 1) moved by (r, t)."""
+    """Screen x, y, 1/z (0: invalid) and z of the point z · (x, y, 1) moved by (r, t)."""
     px, py = x * pz, y * pz
     qx = r[0] * px + r[1] * py + r[2] * pz + t[0]
     qy = r[3] * px + r[4] * py + r[5] * pz + t[1]
@@ -262,72 +287,247 @@ def _vertex(x, y, pz, r, t, cam, dist, has_dist, near):  # pragma: no cover - co
         xd = xn * radial + 2.0 * dist[2] * xn * yn + dist[3] * (r2 + 2.0 * xn * xn)
         yd = yn * radial + dist[2] * (r2 + 2.0 * yn * yn) + 2.0 * dist[3] * xn * yn
         xn, yn = xd, yd
-    return cam[0] * xn + cam[2], cam[1] * yn + cam[3], iz
-
-
-@numba.njit(**_NJ)
-def _vertices_into(depth, rays, use_table, rx, ry, rot, trans, cam, dist, has_dist, near, V, G):  # pragma: no cover
-    """Screen position and 1/z in the current view of every pixel of a clean depth map; ``G`` is 1.0
-    where the vertex is valid (a float32 copy of 1/z > 0, which keeps :func:`_codes_into` in one
-    float width and lets LLVM vectorise it)."""
-    h, w = depth.shape
-    r = (rot[0, 0], rot[0, 1], rot[0, 2], rot[1, 0], rot[1, 1], rot[1, 2], rot[2, 0], rot[2, 1], rot[2, 2])
-    t = (trans[0], trans[1], trans[2])
-    c = (cam[0], cam[1], cam[2], cam[3])
-    k = (dist[0], dist[1], dist[2], dist[3], dist[4])
-    r_x = np.empty(w, np.float64)
-    r_y = np.empty(w, np.float64)
-    r_i = np.empty(w, np.float64)
-    for v in range(h):
-        if use_table:
-            for u in range(w):
-                r_x[u], r_y[u], r_i[u] = _vertex(rays[v, u, 0], rays[v, u, 1], np.float64(depth[v, u]), r, t, c, k,
-                                                 has_dist, near)
-        else:
-            yr = ry[v]
-            for u in range(w):
-                r_x[u], r_y[u], r_i[u] = _vertex(rx[u], yr, np.float64(depth[v, u]), r, t, c, k, has_dist, near)
-        for u in range(w):
-            V[0, v, u] = r_x[u]
-            V[1, v, u] = r_y[u]
-            V[2, v, u] = r_i[u]
-            G[v, u] = np.float32(r_i[u] > 0.0)
-
-
-@numba.njit(**_NJ)
-def _codes_into(P, G, k2s, k2d, code):  # pragma: no cover - compiled
-    """Which triangles of each quad survive: all three vertices valid in the current view and no
-    stretched edge (lengths measured in the previous view; a rigid move keeps them)."""
-    h, w = P.shape[1] - 2, P.shape[2] - 2
-    row = np.empty(max(w - 1, 0), np.uint8)
-    for v in range(h - 1):
-        for u in range(w - 1):
-            x00, y00, z00 = P[0, v + 1, u + 1], P[1, v + 1, u + 1], P[2, v + 1, u + 1]
-            x01, y01, z01 = P[0, v + 1, u + 2], P[1, v + 1, u + 2], P[2, v + 1, u + 2]
-            x10, y10, z10 = P[0, v + 2, u + 1], P[1, v + 2, u + 1], P[2, v + 2, u + 1]
-            x11, y11, z11 = P[0, v + 2, u + 2], P[1, v + 2, u + 2], P[2, v + 2, u + 2]
-            top = _edge_ok(x00, y00, z00, x01, y01, z01, k2s)
-            bot = _edge_ok(x10, y10, z10, x11, y11, z11, k2s)
-            lef = _edge_ok(x00, y00, z00, x10, y10, z10, k2s)
-            rig = _edge_ok(x01, y01, z01, x11, y11, z11, k2s)
-            anti = _edge_ok(x01, y01, z01, x10, y10, z10, k2d)
-            main = _edge_ok(x00, y00, z00, x11, y11, z11, k2d) & (not anti)
-            g00 = G[v, u] > 0.0
-            g01 = G[v, u + 1] > 0.0
-            g10 = G[v + 1, u] > 0.0
-            g11 = G[v + 1, u + 1] > 0.0
-            c = np.uint8(anti & top & lef & g00 & g01 & g10)
-            c |= np.uint8(anti & rig & bot & g01 & g11 & g10) << 1
-            c |= np.uint8(main & top & rig & g00 & g01 & g11) << 2
-            c |= np.uint8(main & bot & lef & g00 & g11 & g10) << 3
-            row[u] = c
-        for u in range(w - 1):
-            code[v + 1, u + 1] = row[u]
+    return cam[0] * xn + cam[2], cam[1] * yn + cam[3], iz, qz
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _tri(xa, ya, iza, wa, xb, yb, izb, wb, xc, yc, izc, wc, xlo, xhi, ylo, yhi, izbuf, wbuf):  # pragma: no cover
-    """General rasteriser for one triangle over the pixel box [xlo, xhi] × [ylo, yhi]."""
+def _vertex_row(depth, v, rays, use_table, rx, ry, r, t, c, k, has_dist, near, R, s):  # pragma: no cover
+    """Vertex row ``v`` of a clean depth map, warped, into slot ``s`` of the ring ``R``: the pixel cell
+    ceil(x − ε), ceil(y − ε) of the screen position (whole numbers as float32, exact: clamped to
+    ±_CELL_LIM, NaN counts as far off-screen), the offset of the position from it (float32, in
+    (−1, ε] on screen), z and 1/z (float32; 1/z = 0: invalid). Projected in float64, so that an
+    identity warp puts every vertex on its pixel centre to ~1e-13 px."""
+    w = depth.shape[1]
+    if use_table:
+        for u in range(w):
+            _vertex_into(rays[v, u, 0], rays[v, u, 1], depth[v, u], r, t, c, k, has_dist, near, R, s, u)
+    else:
+        yr = ry[v]
+        for u in range(w):
+            _vertex_into(rx[u], yr, depth[v, u], r, t, c, k, has_dist, near, R, s, u)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _vertex_row32(depth, v, rx32, ry32, e, t, f, near, R, s):  # pragma: no cover - compiled
+    """:func:`_vertex_row` for a camera without distortion, in float32 (8 lanes), by the displacement of
+    each vertex from its own pixel centre rather than its position: with r = (rx, ry, 1) the pixel's
+    ray, p = d r, q = (I + M) p + t and m = M r,
+
+        x − u = fx (x_n − rx) = fx (d (m_x − rx m_z) + t_x − rx t_z) / q_z,     q_z = d + d m_z + t_z,
+
+    whose rounding error is relative to the motion, not to the image size (~1e-7 px per pixel of
+    motion); no motion (M = 0, t = 0) gives exactly 0 and q_z = d. ``e`` holds M = R − I row-major,
+    ``t`` the translation and ``f`` = (fx, fy), all float32."""
+    w = depth.shape[1]
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    eps = np.float32(_ENUM_EPS)
+    lim = np.float32(_CELL_LIM)
+    yr = ry32[v]
+    fv = np.float32(v)
+    a0 = e[1] * yr + e[2]
+    a1 = e[4] * yr + e[5]
+    a2 = e[7] * yr + e[8]
+    b1 = t[1] - yr * t[2]
+    for u in range(w):
+        xr = rx32[u]
+        d = depth[v, u]
+        e0 = e[0] * xr + a0
+        e1 = e[3] * xr + a1
+        e2 = e[6] * xr + a2
+        qz = d + (d * e2 + t[2])
+        iz = one / qz
+        iz = iz if (d > zero and qz >= near) else zero
+        dx = f[0] * (d * (e0 - xr * e2) + (t[0] - xr * t[2])) * iz
+        dy = f[1] * (d * (e1 - yr * e2) + b1) * iz
+        cx = np.ceil(dx - eps)
+        cy = np.ceil(dy - eps)
+        cx = cx if abs(cx) < lim else lim
+        cy = cy if abs(cy) < lim else lim
+        R.CX[s, u] = np.float32(u) + cx
+        R.CY[s, u] = fv + cy
+        R.FX[s, u] = dx - cx
+        R.FY[s, u] = dy - cy
+        R.Z[s, u] = qz
+        R.IZ[s, u] = iz
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _vertex_into(xr, yr, d, r, t, c, k, has_dist, near, R, s, u):  # pragma: no cover - compiled
+    x, y, iz, qz = _vertex(xr, yr, np.float64(d), r, t, c, k, has_dist, near)
+    cx = np.ceil(x - _ENUM_EPS)
+    cy = np.ceil(y - _ENUM_EPS)
+    cx = cx if abs(cx) < _CELL_LIM else _CELL_LIM
+    cy = cy if abs(cy) < _CELL_LIM else _CELL_LIM
+    R.CX[s, u] = np.float32(cx)
+    R.CY[s, u] = np.float32(cy)
+    R.FX[s, u] = np.float32(x - cx)
+    R.FY[s, u] = np.float32(y - cy)
+    R.Z[s, u] = np.float32(qz)
+    R.IZ[s, u] = np.float32(iz)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _code_row(E, v, R, s0, s1, cs):  # pragma: no cover - compiled
+    """Which triangles of each quad of row ``v`` survive: all three vertices valid in the current view
+    and no stretched edge (the edge flags ``E`` of the previous map, see :func:`_normals_edges_row`; a
+    rigid move keeps lengths). Into ``R.C[cs, 1:w]`` (the bits), ``R.A[cs]`` (split along 01–10),
+    ``R.TA[cs]`` / ``R.TB[cs]`` (the triangle with apex 00 resp. 11 of that split, or 01 resp. 10 of
+    the other, is drawn)."""
+    w = E.shape[2]
+    G = R.IZ
+    C, A, TA, TB = R.C, R.A, R.TA, R.TB
+    for u in range(w - 1):
+        top = E[0, v, u]
+        bot = E[0, v + 1, u]
+        lef = E[1, v, u]
+        rig = E[1, v, u + 1]
+        anti = E[3, v, u]
+        main = E[2, v, u] & (not anti)
+        g00 = G[s0, u] > 0.0
+        g01 = G[s0, u + 1] > 0.0
+        g10 = G[s1, u] > 0.0
+        g11 = G[s1, u + 1] > 0.0
+        t0 = anti & top & lef & g00 & g01 & g10
+        t1 = anti & rig & bot & g01 & g11 & g10
+        t2 = main & top & rig & g00 & g01 & g11
+        t3 = main & bot & lef & g00 & g11 & g10
+        C[cs, u + 1] = np.uint8(t0) | (np.uint8(t1) << 1) | (np.uint8(t2) << 2) | (np.uint8(t3) << 3)
+        A[cs, u] = anti
+        TA[cs, u] = t0 | t2
+        TB[cs, u] = t1 | t3
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _fast_row(R, weight, v, s0, s1, cs, h, r_zw, r_t, r_slow):  # pragma: no cover - compiled
+    """Branch-free float32 pass over quad row ``v``. For a quad whose drawn triangles' box holds exactly
+    one pixel centre: the z there (+inf: the centre is in neither triangle), its weight and pixel.
+    ``r_slow``: the quad needs the full float64 rasteriser (several candidate pixels, folded over
+    itself, or a triangle thinner than ``_AREA_MIN32``).
+
+    The box comes from the vertices' integer cells (min and max commute with ceil, so it is the box of
+    the float64 positions); the barycentrics from float32 positions relative to the candidate pixel
+    centre, (cell − pixel) + offset, within ~1e-7 px of the float64 ones whatever the motion. The
+    depth is interpolated perspective-correctly around the nearest vertex n (largest barycentric):
+    1/z = (1/z_n) (1 + Σ_{i≠n} b_i (z_n / z_i − 1)), exact on a constant depth and, when the pixel
+    centre sits on a vertex (an identity warp), that vertex's depth bit for bit."""
+    w = R.CX.shape[1]
+    CX, CY, FX, FY, Z, IZ = R.CX, R.CY, R.FX, R.FY, R.Z, R.IZ
+    A, TA, TB = R.A, R.TA, R.TB
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    inf = np.float32(np.inf)
+    wm1 = np.float32(w - 1)
+    hm1 = np.float32(h - 1)
+    wi = np.int32(w)
+    for u in range(w - 1):
+        anti = A[cs, u]
+        ta = TA[cs, u]
+        tb = TB[cs, u]
+        cx00, cy00, fx00, fy00 = CX[s0, u], CY[s0, u], FX[s0, u], FY[s0, u]
+        cx01, cy01, fx01, fy01 = CX[s0, u + 1], CY[s0, u + 1], FX[s0, u + 1], FY[s0, u + 1]
+        cx10, cy10, fx10, fy10 = CX[s1, u], CY[s1, u], FX[s1, u], FY[s1, u]
+        cx11, cy11, fx11, fy11 = CX[s1, u + 1], CY[s1, u + 1], FX[s1, u + 1], FY[s1, u + 1]
+        z00, iz00, w00 = Z[s0, u], IZ[s0, u], weight[v, u]
+        z01, iz01, w01 = Z[s0, u + 1], IZ[s0, u + 1], weight[v, u + 1]
+        z10, iz10, w10 = Z[s1, u], IZ[s1, u], weight[v + 1, u]
+        z11, iz11, w11 = Z[s1, u + 1], IZ[s1, u + 1], weight[v + 1, u + 1]
+        # the two triangles of the split share the diagonal da–db; their apexes are pa and pb
+        da_cx = cx01 if anti else cx00
+        da_cy = cy01 if anti else cy00
+        da_fx = fx01 if anti else fx00
+        da_fy = fy01 if anti else fy00
+        db_cx = cx10 if anti else cx11
+        db_cy = cy10 if anti else cy11
+        db_fx = fx10 if anti else fx11
+        db_fy = fy10 if anti else fy11
+        pa_cx = cx00 if anti else cx01
+        pa_cy = cy00 if anti else cy01
+        pa_fx = fx00 if anti else fx01
+        pa_fy = fy00 if anti else fy01
+        pb_cx = cx11 if anti else cx10
+        pb_cy = cy11 if anti else cy10
+        pb_fx = fx11 if anti else fx10
+        pb_fy = fy11 if anti else fy10
+        # box of the drawn triangles (the apex of an absent triangle may be an invalid vertex)
+        qa_cx = pa_cx if ta else da_cx
+        qa_cy = pa_cy if ta else da_cy
+        qb_cx = pb_cx if tb else da_cx
+        qb_cy = pb_cy if tb else da_cy
+        xlo = min(min(da_cx, db_cx), min(qa_cx, qb_cx))
+        xhi = max(max(da_cx, db_cx), max(qa_cx, qb_cx)) - one
+        ylo = min(min(da_cy, db_cy), min(qa_cy, qb_cy))
+        yhi = max(max(da_cy, db_cy), max(qa_cy, qb_cy)) - one
+        px = max(min(xlo, wm1), zero)
+        py = max(min(ylo, hm1), zero)
+        # positions relative to the pixel centre (px, py)
+        dax = (da_cx - px) + da_fx
+        day = (da_cy - py) + da_fy
+        dbx = (db_cx - px) + db_fx
+        dby = (db_cy - py) + db_fy
+        pax = (pa_cx - px) + pa_fx
+        pay = (pa_cy - py) + pa_fy
+        pbx = (pb_cx - px) + pb_fx
+        pby = (pb_cy - py) + pb_fy
+        # side of the diagonal, then the barycentrics of the triangle on that side
+        ex = dbx - dax
+        ey = dby - day
+        sa = ex * (pay - day) - ey * (pax - dax)
+        sb = ex * (pby - day) - ey * (pbx - dax)
+        e = ey * dax - ex * day
+        use_a = ta and (e * sa >= zero or not tb)
+        ax = pax if use_a else pbx
+        ay = pay if use_a else pby
+        ar = sa if use_a else sb
+        inv = one / ar
+        b_apex = e * inv
+        b_da = (dbx * ay - ax * dby) * inv
+        b_db = one - b_apex - b_da
+        inside = min(b_apex, min(b_da, b_db)) >= -_BARY_EPS32
+        # depth and weight around the nearest vertex
+        a_z = (z00 if anti else z01) if use_a else (z11 if anti else z10)
+        a_iz = (iz00 if anti else iz01) if use_a else (iz11 if anti else iz10)
+        a_w = (w00 if anti else w01) if use_a else (w11 if anti else w10)
+        da_z = z01 if anti else z00
+        da_iz = iz01 if anti else iz00
+        da_w = w01 if anti else w00
+        db_z = z10 if anti else z11
+        db_iz = iz10 if anti else iz11
+        db_w = w10 if anti else w11
+        n_a = b_apex >= b_da and b_apex >= b_db
+        n_da = (not n_a) and b_da >= b_db
+        n_db = not (n_a or n_da)
+        zn = a_z if n_a else (da_z if n_da else db_z)
+        wt = a_w if n_a else (da_w if n_da else db_w)
+        t_a = zero if n_a else b_apex * (zn * a_iz - one)
+        t_da = zero if n_da else b_da * (zn * da_iz - one)
+        t_db = zero if n_db else b_db * (zn * db_iz - one)
+        z = zn / (one + (t_a + t_da + t_db))
+        inside_img = xlo >= zero and xlo <= wm1 and ylo >= zero and ylo <= hm1
+        single = xlo == xhi and ylo == yhi and inside_img
+        none = xlo > xhi or ylo > yhi or xhi < zero or yhi < zero or xlo > wm1 or ylo > hm1
+        folded = ta and tb and not (sa * sb < zero)
+        thin = (ta and not abs(sa) >= _AREA_MIN32) or (tb and not abs(sb) >= _AREA_MIN32)
+        fast = single and not folded and not thin
+        drawn = ta or tb
+        r_zw[2 * u + _ZI] = z if (fast and inside and drawn) else inf
+        r_zw[2 * u + _WI] = wt
+        r_t[u] = np.int32(np.int32(py) * wi + np.int32(px))
+        r_slow[u] = drawn and not none and not fast
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _xyi(R, s, u):  # pragma: no cover - compiled
+    """float64 screen x, y and 1/z of vertex ``u`` of ring slot ``s`` (1/z from z, so that 1/(1/z)
+    rounds back to z; 0 for an invalid vertex)."""
+    iz = 1.0 / np.float64(R.Z[s, u])
+    return (np.float64(R.CX[s, u]) + np.float64(R.FX[s, u]), np.float64(R.CY[s, u]) + np.float64(R.FY[s, u]),
+            iz if R.IZ[s, u] > 0.0 else 0.0)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _tri(xa, ya, iza, wa, xb, yb, izb, wb, xc, yc, izc, wc, xlo, xhi, ylo, yhi, zw):  # pragma: no cover
+    """General float64 rasteriser for one triangle over the pixel box [xlo, xhi] × [ylo, yhi]."""
     area = (xb - xa) * (yc - ya) - (xc - xa) * (yb - ya)
     if not abs(area) > 1e-12:
         return
@@ -339,216 +539,211 @@ def _tri(xa, ya, iza, wa, xb, yb, izb, wb, xc, yc, izc, wc, xlo, xhi, ylo, yhi, 
             bc = 1.0 - ba - bb
             if ba < -_BARY_EPS or bb < -_BARY_EPS or bc < -_BARY_EPS:
                 continue
-            izp = ba * iza + bb * izb + bc * izc
-            if izp > izbuf[py, px]:
-                izbuf[py, px] = izp
+            z = np.float32(1.0 / (ba * iza + bb * izb + bc * izc))
+            if z < zw[py, 2 * px + _ZI]:
+                zw[py, 2 * px + _ZI] = z
                 if ba >= bb and ba >= bc:
-                    wbuf[py, px] = wa
+                    zw[py, 2 * px + _WI] = wa
                 elif bb >= bc:
-                    wbuf[py, px] = wb
+                    zw[py, 2 * px + _WI] = wb
                 else:
-                    wbuf[py, px] = wc
+                    zw[py, 2 * px + _WI] = wc
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _scatter_row(V, code, weight, v, r_iz, r_w, r_t, izbuf, wbuf):  # pragma: no cover - compiled
-    """z-buffer one row of one-pixel quads (closest wins); rasterise its ``_SLOW`` quads in full."""
-    h, w = V.shape[1], V.shape[2]
-    izf = izbuf.reshape(-1)
-    wf = wbuf.reshape(-1)
+def _scatter_row(R, weight, v, s0, s1, cs, r_zw, r_t, r_slow, zw):  # pragma: no cover
+    """z-buffer the one-pixel results of quad row ``v``, then rasterise its slow quads in full.
+
+    Branch-free: a pixel's (z, weight) pair is one uint64 whose high half holds the bits of z, and a
+    positive float32 orders like its bits, so "closest wins" is an integer min (+inf never wins; of two
+    equal depths the smaller weight does)."""
+    h = zw.shape[0]
+    w = zw.shape[1] // 2
+    zk = zw.view(np.uint64).reshape(-1)
+    keys = r_zw.view(np.uint64)
     for u in range(w - 1):
-        iz = r_iz[u]
-        if iz > 0.0:
-            t = r_t[u]
-            if iz > izf[t]:
-                izf[t] = iz
-                wf[t] = r_w[u]
-        elif iz == _SLOW:
-            c = code[v + 1, u + 1]
-            x0, y0, i0, w0 = V[0, v, u], V[1, v, u], V[2, v, u], weight[v, u]
-            x1, y1, i1, w1 = V[0, v, u + 1], V[1, v, u + 1], V[2, v, u + 1], weight[v, u + 1]
-            x2, y2, i2, w2 = V[0, v + 1, u], V[1, v + 1, u], V[2, v + 1, u], weight[v + 1, u]
-            x3, y3, i3, w3 = V[0, v + 1, u + 1], V[1, v + 1, u + 1], V[2, v + 1, u + 1], weight[v + 1, u + 1]
-            # box of the drawn triangles: an unused corner takes a used corner's position
-            bx0, by0 = (x0, y0) if c & _USES_00 else (x1, y1)
-            bx1, by1 = (x1, y1) if c & _USES_01 else (x0, y0)
-            bx2, by2 = (x2, y2) if c & _USES_10 else (x1, y1)
-            bx3, by3 = (x3, y3) if c & _USES_11 else (x0, y0)
-            xlo = max(math.ceil(min(min(bx0, bx1), min(bx2, bx3)) - _ENUM_EPS), 0)
-            xhi = min(math.ceil(max(max(bx0, bx1), max(bx2, bx3)) - _ENUM_EPS) - 1, w - 1)
-            ylo = max(math.ceil(min(min(by0, by1), min(by2, by3)) - _ENUM_EPS), 0)
-            yhi = min(math.ceil(max(max(by0, by1), max(by2, by3)) - _ENUM_EPS) - 1, h - 1)
-            if c & 1:
-                _tri(x0, y0, i0, w0, x1, y1, i1, w1, x2, y2, i2, w2, xlo, xhi, ylo, yhi, izbuf, wbuf)
-            if c & 2:
-                _tri(x1, y1, i1, w1, x3, y3, i3, w3, x2, y2, i2, w2, xlo, xhi, ylo, yhi, izbuf, wbuf)
-            if c & 4:
-                _tri(x0, y0, i0, w0, x1, y1, i1, w1, x3, y3, i3, w3, xlo, xhi, ylo, yhi, izbuf, wbuf)
-            if c & 8:
-                _tri(x0, y0, i0, w0, x3, y3, i3, w3, x2, y2, i2, w2, xlo, xhi, ylo, yhi, izbuf, wbuf)
-
-
-@numba.njit(**_NJ)
-def _raster_into(V, code, weight, izbuf, wbuf):  # pragma: no cover - compiled
-    """Rasterise the coded triangles into the z-buffer (``izbuf`` zero on entry).
-
-    Per row of quads, a branch-free pass (vectorised) resolves every quad whose box holds exactly one
-    pixel centre: the 1/z at that pixel (0: the centre is in neither triangle), its weight and flat
-    index; a quad with several candidate pixels, or folded over itself, is marked ``_SLOW``. A scalar
-    pass then z-buffers the row's results and rasterises the ``_SLOW`` quads in full."""
-    h, w = V.shape[1], V.shape[2]
-    n = max(w - 1, 0)
-    r_iz = np.empty(n, np.float64)
-    r_w = np.empty(n, np.float32)
-    r_t = np.empty(n, np.int32)
-    for v in range(h - 1):
-        for u in range(w - 1):
-            c = code[v + 1, u + 1]
-            x0, y0, i0, w0 = V[0, v, u], V[1, v, u], V[2, v, u], weight[v, u]
-            x1, y1, i1, w1 = V[0, v, u + 1], V[1, v, u + 1], V[2, v, u + 1], weight[v, u + 1]
-            x2, y2, i2, w2 = V[0, v + 1, u], V[1, v + 1, u], V[2, v + 1, u], weight[v + 1, u]
-            x3, y3, i3, w3 = V[0, v + 1, u + 1], V[1, v + 1, u + 1], V[2, v + 1, u + 1], weight[v + 1, u + 1]
-            # the two triangles of the split share the diagonal da–db; their apexes are pa and pb
-            anti = (c & 3) != 0
-            da_x, da_y, da_i, da_w = (x1, y1, i1, w1) if anti else (x0, y0, i0, w0)
-            db_x, db_y, db_i, db_w = (x2, y2, i2, w2) if anti else (x3, y3, i3, w3)
-            pa_x, pa_y, pa_i, pa_w = (x0, y0, i0, w0) if anti else (x1, y1, i1, w1)
-            pb_x, pb_y, pb_i, pb_w = (x3, y3, i3, w3) if anti else (x2, y2, i2, w2)
-            ta = (c & 5) != 0
-            tb = (c & 10) != 0
-            # box of the drawn triangles (the apex of an absent triangle may be an invalid vertex)
-            qa_x = pa_x if ta else da_x
-            qa_y = pa_y if ta else da_y
-            qb_x = pb_x if tb else da_x
-            qb_y = pb_y if tb else da_y
-            xlo = np.ceil(min(min(da_x, db_x), min(qa_x, qb_x)) - _ENUM_EPS)
-            xhi = np.ceil(max(max(da_x, db_x), max(qa_x, qb_x)) - _ENUM_EPS) - 1.0
-            ylo = np.ceil(min(min(da_y, db_y), min(qa_y, qb_y)) - _ENUM_EPS)
-            yhi = np.ceil(max(max(da_y, db_y), max(qa_y, qb_y)) - _ENUM_EPS) - 1.0
-            px = max(min(xlo, w - 1.0), 0.0)
-            py = max(min(ylo, h - 1.0), 0.0)
-            # side of the diagonal, then the barycentrics of the triangle on that side
-            ex, ey = db_x - da_x, db_y - da_y
-            sa = ex * (pa_y - da_y) - ey * (pa_x - da_x)
-            sb = ex * (pb_y - da_y) - ey * (pb_x - da_x)
-            e = ex * (py - da_y) - ey * (px - da_x)
-            use_a = ta and (e * sa >= 0.0 or not tb)
-            ax = pa_x if use_a else pb_x
-            ay = pa_y if use_a else pb_y
-            ai = pa_i if use_a else pb_i
-            aw = pa_w if use_a else pb_w
-            ar = sa if use_a else sb
-            inv = 1.0 / ar
-            b_apex = e * inv
-            b_da = ((db_x - px) * (ay - py) - (ax - px) * (db_y - py)) * inv
-            b_db = 1.0 - b_apex - b_da
-            inside = abs(ar) > 1e-12 and min(b_apex, min(b_da, b_db)) >= -_BARY_EPS
-            iz = b_apex * ai + b_da * da_i + b_db * db_i
-            wt = aw if (b_apex >= b_da and b_apex >= b_db) else (da_w if b_da >= b_db else db_w)
-            inside_img = xlo >= 0.0 and xlo <= w - 1.0 and ylo >= 0.0 and ylo <= h - 1.0
-            single = xlo == xhi and ylo == yhi and inside_img
-            none = xlo > xhi or ylo > yhi or xhi < 0.0 or yhi < 0.0 or xlo > w - 1.0 or ylo > h - 1.0
-            folded = ta and tb and not (sa * sb < 0.0)
-            fast = single and not folded
-            iz = iz if (fast and inside) else 0.0
-            iz = _SLOW if (c != 0 and not none and not fast) else iz
-            r_iz[u] = iz
-            r_w[u] = wt
-            r_t[u] = np.int32(py * w + px)
-        _scatter_row(V, code, weight, v, r_iz, r_w, r_t, izbuf, wbuf)
-
-
-@numba.njit(**_NJ)
-def _rim_flags_into(code, rim):  # pragma: no cover - compiled
-    """rim[v, u] = True for a vertex used by some triangle but not surrounded by four full quads."""
-    h, w = rim.shape
-    row = np.empty(w, np.bool_)
-    for v in range(h):
-        for u in range(w):
-            c00 = code[v + 1, u + 1]
-            c01 = code[v + 1, u]
-            c10 = code[v, u + 1]
-            c11 = code[v, u]
-            used = (c00 & _USES_00) | (c01 & _USES_01) | (c10 & _USES_10) | (c11 & _USES_11)
-            full = (((c00 == 3) | (c00 == 12)) & ((c01 == 3) | (c01 == 12))
-                    & ((c10 == 3) | (c10 == 12)) & ((c11 == 3) | (c11 == 12)))
-            row[u] = (used != 0) & (not full)
-        for u in range(w):
-            rim[v, u] = row[u]
+        t = r_t[u]
+        zk[t] = min(zk[t], keys[u])
+    n_slow = 0
+    for u in range(w - 1):
+        n_slow += r_slow[u]
+    if n_slow == 0:
+        return
+    C = R.C
+    for u in range(w - 1):
+        if not r_slow[u]:
+            continue
+        c = C[cs, u + 1]
+        x0, y0, i0 = _xyi(R, s0, u)
+        x1, y1, i1 = _xyi(R, s0, u + 1)
+        x2, y2, i2 = _xyi(R, s1, u)
+        x3, y3, i3 = _xyi(R, s1, u + 1)
+        w0, w1, w2, w3 = weight[v, u], weight[v, u + 1], weight[v + 1, u], weight[v + 1, u + 1]
+        # box of the drawn triangles: an unused corner takes a used corner's position
+        bx0, by0 = (x0, y0) if c & _USES_00 else (x1, y1)
+        bx1, by1 = (x1, y1) if c & _USES_01 else (x0, y0)
+        bx2, by2 = (x2, y2) if c & _USES_10 else (x1, y1)
+        bx3, by3 = (x3, y3) if c & _USES_11 else (x0, y0)
+        xlo = max(math.ceil(min(min(bx0, bx1), min(bx2, bx3)) - _ENUM_EPS), 0)
+        xhi = min(math.ceil(max(max(bx0, bx1), max(bx2, bx3)) - _ENUM_EPS) - 1, w - 1)
+        ylo = max(math.ceil(min(min(by0, by1), min(by2, by3)) - _ENUM_EPS), 0)
+        yhi = min(math.ceil(max(max(by0, by1), max(by2, by3)) - _ENUM_EPS) - 1, h - 1)
+        if c & 1:
+            _tri(x0, y0, i0, w0, x1, y1, i1, w1, x2, y2, i2, w2, xlo, xhi, ylo, yhi, zw)
+        if c & 2:
+            _tri(x1, y1, i1, w1, x3, y3, i3, w3, x2, y2, i2, w2, xlo, xhi, ylo, yhi, zw)
+        if c & 4:
+            _tri(x0, y0, i0, w0, x1, y1, i1, w1, x3, y3, i3, w3, xlo, xhi, ylo, yhi, zw)
+        if c & 8:
+            _tri(x0, y0, i0, w0, x3, y3, i3, w3, x2, y2, i2, w2, xlo, xhi, ylo, yhi, zw)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _triangle(qv, qu, bit):  # pragma: no cover - compiled
-    """Pixel rows / columns of the three vertices of triangle ``bit`` of quad (qv, qu)."""
-    if bit == 0:
-        return qv, qu, qv, qu + 1, qv + 1, qu
-    if bit == 1:
-        return qv, qu + 1, qv + 1, qu + 1, qv + 1, qu
-    if bit == 2:
-        return qv, qu, qv, qu + 1, qv + 1, qu + 1
-    return qv, qu, qv + 1, qu + 1, qv + 1, qu
+def _rim_row(R, weight, v, h, flags, s_t, s_z, s_w, n):  # pragma: no cover - compiled
+    """Splat candidates of the rim vertices of row ``v`` (used by some triangle but not surrounded by
+    four full quads), appended to the list ``s_t, s_z, s_w`` from index ``n``: the vertex's nearest
+    pixel, the depth there of the plane of one of its drawn triangles (extrapolated by at most half a
+    pixel, so that planes stay exact at their rims too; the vertex's own depth if that triangle is
+    degenerate), and its weight. Returns the new length. Needs the codes of quad rows v − 1 and v and
+    the vertex rows v − 1 … v + 1 in the ring."""
+    C = R.C
+    w = R.CX.shape[1]
+    ca = v % 2  # quad row v
+    cb = (v + 1) % 2  # quad row v − 1
+    for u in range(w):
+        c00 = C[ca, u + 1]
+        c01 = C[ca, u]
+        c10 = C[cb, u + 1]
+        c11 = C[cb, u]
+        used = (c00 & _USES_00) | (c01 & _USES_01) | (c10 & _USES_10) | (c11 & _USES_11)
+        full = (((c00 == 3) | (c00 == 12)) & ((c01 == 3) | (c01 == 12))
+                & ((c10 == 3) | (c10 == 12)) & ((c11 == 3) | (c11 == 12)))
+        flags[u] = (used != 0) & (not full)
+    sv = v % 3
+    CX, CY, FX, FY, Z, IZ = R.CX, R.CY, R.FX, R.FY, R.Z, R.IZ
+    for u in range(w):
+        if not flags[u]:
+            continue
+        x = np.float64(CX[sv, u]) + np.float64(FX[sv, u])
+        y = np.float64(CY[sv, u]) + np.float64(FY[sv, u])
+        fx = math.floor(x + 0.5)
+        fy = math.floor(y + 0.5)
+        if not (fx >= 0.0 and fx < w and fy >= 0.0 and fy < h):
+            continue
+        px = int(fx)
+        py = int(fy)
+        # the first drawn triangle that uses this vertex, in quads (v, u), (v, u-1), (v-1, u), (v-1, u-1)
+        b0 = C[ca, u + 1] & _USES_00
+        b1 = C[ca, u] & _USES_01
+        b2 = C[cb, u + 1] & _USES_10
+        b3 = C[cb, u] & _USES_11
+        q = 0 if b0 else (1 if b1 else (2 if b2 else 3))
+        bits = b0 if b0 else (b1 if b1 else (b2 if b2 else b3))
+        o = _RIM_TRI[q, _LOWBIT[bits]]  # its other two vertices, relative to this one
+        sb, ub, sc, uc = (v + o[0]) % 3, u + o[1], (v + o[2]) % 3, u + o[3]
+        xb = np.float64(CX[sb, ub]) + np.float64(FX[sb, ub])
+        yb = np.float64(CY[sb, ub]) + np.float64(FY[sb, ub])
+        xc = np.float64(CX[sc, uc]) + np.float64(FX[sc, uc])
+        yc = np.float64(CY[sc, uc]) + np.float64(FY[sc, uc])
+        # that triangle's plane at the pixel centre, around this vertex: 1/z = (1/z_v) (1 + Σ b_i (z_v / z_i − 1))
+        zv = np.float64(Z[sv, u])
+        z = zv
+        area = (xb - x) * (yc - y) - (xc - x) * (yb - y)
+        if abs(area) > 1e-12:
+            inv = 1.0 / area
+            bb = ((xc - px) * (y - py) - (x - px) * (yc - py)) * inv
+            bc = ((x - px) * (yb - py) - (xb - px) * (y - py)) * inv
+            den = 1.0 + bb * (zv * IZ[sb, ub] - 1.0) + bc * (zv * IZ[sc, uc] - 1.0)
+            z = zv / den if den > 0.0 else zv
+        s_t[n] = py * w + px
+        s_z[n] = np.float32(z)
+        s_w[n] = weight[v, u]
+        n += 1
+    return n
 
 
 @numba.njit(**_NJ)
-def _rim_splat(V, code, weight, rim, izbuf, wbuf):  # pragma: no cover - compiled
-    """Rim vertices onto the pixels no triangle covers, stored as −1/z (closest splat wins).
+def _warp_kernel(depth, E, weight, rot, trans, rays, use_table, rx, ry, rx32, ry32, cam, dist, has_dist, near, zw,
+                 s_t, s_z, s_w):  # pragma: no cover - compiled
+    """Warp a clean depth map (its edge flags ``E``, its weights) by p ↦ rot · p + trans into the
+    z-buffer ``zw`` (H, 2W) float32: pairs [2u + _ZI] = the z-depth of each pixel (negated for a rim
+    splat, +inf where nothing landed), [2u + _WI] = its weight. ``s_t, s_z, s_w`` (length ≥ H·W) hold
+    the rim splat list. Returns the number of rim splat candidates.
 
-    With vertices at pixel centres, a sub-pixel move shaves the outermost row or column off a region
-    about every other frame, and the half-open enumeration leaves a surface's right and bottom
-    boundary pixels to nobody under an identity warp; a rim vertex on its nearest pixel keeps both.
-    The splat's 1/z is that of the plane of one of the vertex' drawn triangles at the pixel centre
-    (extrapolated by at most half a pixel), so that planes stay exact at their rims too.
-    """
-    h, w = rim.shape
+    One pass over the rows: per quad row v it warps vertex row v + 1 into a ring of three rows, codes
+    the quads, runs the vectorised one-pixel pass, z-buffers it and rasterises the rest, and collects
+    the rim splats of vertex row v. The splats go in after the last row, since any triangle may still
+    cover their pixel. Nothing image-sized is written but the z-buffer and its weights."""
+    h, w = depth.shape
+    zw.view(np.uint64)[:, :] = _EMPTY_KEY
+    if h == 0 or w == 0:
+        return 0
+    r = (rot[0, 0], rot[0, 1], rot[0, 2], rot[1, 0], rot[1, 1], rot[1, 2], rot[2, 0], rot[2, 1], rot[2, 2])
+    t = (trans[0], trans[1], trans[2])
+    c = (cam[0], cam[1], cam[2], cam[3])
+    k = (dist[0], dist[1], dist[2], dist[3], dist[4])
+    e32 = (np.float32(rot[0, 0] - 1.0), np.float32(rot[0, 1]), np.float32(rot[0, 2]),
+           np.float32(rot[1, 0]), np.float32(rot[1, 1] - 1.0), np.float32(rot[1, 2]),
+           np.float32(rot[2, 0]), np.float32(rot[2, 1]), np.float32(rot[2, 2] - 1.0))
+    t32 = (np.float32(trans[0]), np.float32(trans[1]), np.float32(trans[2]))
+    f32 = (np.float32(cam[0]), np.float32(cam[1]))
+    near32 = np.float32(near)
+    f = np.empty((6, 3, w), np.float32)
+    R = _Ring(f[0], f[1], f[2], f[3], f[4], f[5],
+              np.zeros((2, w + 1), np.uint8),  # codes of quad rows v (slot v % 2) and v − 1; borders stay 0
+              np.empty((2, w), np.bool_), np.empty((2, w), np.bool_), np.empty((2, w), np.bool_))
+    n = max(w - 1, 0)
+    r_zw = np.empty(2 * n, np.float32)  # (weight, z) pairs, see _scatter_row
+    r_t = np.empty(n, np.int32)
+    r_slow = np.empty(n, np.bool_)
+    flags = np.empty(w, np.bool_)
+    n_splat = 0
+    if use_table:
+        _vertex_row(depth, 0, rays, use_table, rx, ry, r, t, c, k, has_dist, near, R, 0)
+    else:
+        _vertex_row32(depth, 0, rx32, ry32, e32, t32, f32, near32, R, 0)
     for v in range(h):
-        for u in range(w):
-            if not rim[v, u]:
-                continue
-            px = int(math.floor(V[0, v, u] + 0.5))
-            py = int(math.floor(V[1, v, u] + 0.5))
-            if px < 0 or px >= w or py < 0 or py >= h:
-                continue
-            cur = izbuf[py, px]
-            if cur > 0.0:
-                continue
-            # a drawn triangle that uses this vertex: quads (v, u), (v, u-1), (v-1, u), (v-1, u-1)
-            qv, qu, bits = v, u, code[v + 1, u + 1] & _USES_00
-            if bits == 0:
-                qv, qu, bits = v, u - 1, code[v + 1, u] & _USES_01
-            if bits == 0:
-                qv, qu, bits = v - 1, u, code[v, u + 1] & _USES_10
-            if bits == 0:
-                qv, qu, bits = v - 1, u - 1, code[v, u] & _USES_11
-            bit = 0
-            while not (bits >> bit) & 1:
-                bit += 1
-            a0, a1, b0, b1, c0, c1 = _triangle(qv, qu, bit)
-            xa, ya, xb, yb, xc, yc = V[0, a0, a1], V[1, a0, a1], V[0, b0, b1], V[1, b0, b1], V[0, c0, c1], V[1, c0, c1]
-            area = (xb - xa) * (yc - ya) - (xc - xa) * (yb - ya)
-            iz = V[2, v, u]
-            if abs(area) > 1e-12:
-                ba = ((xb - px) * (yc - py) - (xc - px) * (yb - py)) / area
-                bb = ((xc - px) * (ya - py) - (xa - px) * (yc - py)) / area
-                ext = ba * V[2, a0, a1] + bb * V[2, b0, b1] + (1.0 - ba - bb) * V[2, c0, c1]
-                iz = ext if ext > 0.0 else iz
-            if iz <= -cur:
-                continue
-            izbuf[py, px] = -iz
-            wbuf[py, px] = weight[v, u]
+        s0 = v % 3
+        cs = v % 2
+        if v + 1 < h:
+            s1 = (v + 1) % 3
+            if use_table:
+                _vertex_row(depth, v + 1, rays, use_table, rx, ry, r, t, c, k, has_dist, near, R, s1)
+            else:
+                _vertex_row32(depth, v + 1, rx32, ry32, e32, t32, f32, near32, R, s1)
+            _code_row(E, v, R, s0, s1, cs)
+            _fast_row(R, weight, v, s0, s1, cs, h, r_zw, r_t, r_slow)
+            _scatter_row(R, weight, v, s0, s1, cs, r_zw, r_t, r_slow, zw)
+        else:
+            R.C[cs, :] = 0
+        n_splat = _rim_row(R, weight, v, h, flags, s_t, s_z, s_w, n_splat)
+    # rim splats where no triangle landed, stored as −z (closest splat wins)
+    zf = zw.reshape(-1)
+    for i in range(n_splat):
+        j = 2 * s_t[i]
+        cur = zf[j + _ZI]
+        if cur > 0.0 and cur < np.inf:
+            continue
+        if cur < 0.0 and not s_z[i] < -cur:
+            continue
+        zf[j + _ZI] = -s_z[i]
+        zf[j + _WI] = s_w[i]
+    return n_splat
 
 
 @numba.njit(**_NJ)
-def _unpack_warp(izbuf, wbuf):  # pragma: no cover - compiled
-    h, w = izbuf.shape
+def _unpack_warp(zw):  # pragma: no cover - compiled
+    h = zw.shape[0]
+    w = zw.shape[1] // 2
     depth = np.empty((h, w), np.float32)
     weight = np.empty((h, w), np.float32)
     known = np.empty((h, w), np.bool_)
     for v in range(h):
         for u in range(w):
-            iz = abs(izbuf[v, u])
-            ok = iz > 0.0
-            depth[v, u] = np.float32(1.0 / iz) if ok else np.float32(0.0)
-            weight[v, u] = wbuf[v, u] if ok else np.float32(0.0)
+            z = abs(zw[v, 2 * u + _ZI])
+            ok = z < np.inf
+            depth[v, u] = z if ok else np.float32(0.0)
+            weight[v, u] = zw[v, 2 * u + _WI] if ok else np.float32(0.0)
             known[v, u] = ok
     return depth, weight, known
 
@@ -580,23 +775,24 @@ def _window_min_into(nd: np.ndarray, nk: np.ndarray, r: int, tmp: np.ndarray, ou
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def _merge_pixel(a, a_ok, wa_raw, b, b_ok, near_new, max_weight, thr_rel, thr_abs):  # pragma: no cover - compiled
-    """Merged (depth float32, weight float32) of one pixel, whether the two were averaged, and
-    whether a warped-only value was dropped as occluded (``near_new``: the closest new depth nearby).
-    Branch-free, so the loops around it vectorise."""
-    wa = min(max(np.float64(wa_raw), 0.0), max_weight)
-    da = np.float64(a)
-    diff = np.float64(b) - da
-    agree = abs(diff) <= thr_abs + thr_rel * np.float64(b)
-    avg = np.float32(da + diff / (wa + 1.0))  # d_w + (d_n − d_w) / (w_w + 1): exact when equal
+    """Merged (depth, weight) of one pixel, whether the two were averaged, and whether a warped-only
+    value was dropped as occluded (``near_new``: the closest new depth nearby). All float32 (the
+    difference of two agreeing depths is exact, so the average is within half an ulp of the float64
+    one) and branch-free, so the loops around it vectorise 8 wide."""
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    wa = min(max(wa_raw, zero), max_weight)
+    diff = b - a
+    agree = abs(diff) <= thr_abs + thr_rel * b
+    avg = a + diff / (wa + one)  # d_w + (d_n − d_w) / (w_w + 1): exact when equal
     averaged = a_ok & b_ok & agree
-    nn = np.float64(near_new)
-    occluded = a_ok & (not b_ok) & (da - nn > thr_abs + thr_rel * nn)
-    d = b if b_ok else (a if a_ok else np.float32(0.0))
-    wt = np.float32(1.0) if b_ok else (np.float32(wa) if a_ok else np.float32(0.0))
+    occluded = a_ok & (not b_ok) & (a - near_new > thr_abs + thr_rel * near_new)
+    d = b if b_ok else (a if a_ok else zero)
+    wt = one if b_ok else (wa if a_ok else zero)
     d = avg if averaged else d
-    wt = np.float32(min(wa + 1.0, max_weight)) if averaged else wt
-    d = np.float32(0.0) if occluded else d
-    wt = np.float32(0.0) if occluded else wt
+    wt = min(wa + one, max_weight) if averaged else wt
+    d = zero if occluded else d
+    wt = zero if occluded else wt
     return d, wt, averaged, occluded
 
 
@@ -619,35 +815,117 @@ def _merge_arrays(wd, ww, wk, nd, nk, near_new, max_weight, thr_rel, thr_abs):  
     return depth, weight, known
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _ring_slot(r, h):  # pragma: no cover - compiled
+    """Slot of image row ``r`` in a point ring (slot 3 stays zero: the rows above and below the image)."""
+    return r % 3 if (r >= 0 and r < h) else 3
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _points_row(depth, v, h, rays, use_table, rx32, ry32, PR):  # pragma: no cover - compiled
+    """Camera-frame points (x, y, z) of row ``v`` of a clean depth map into its slot of the point ring
+    ``PR`` (3, 4, W + 2) float32 (columns 0 and W + 1 stay zero)."""
+    w = depth.shape[1]
+    s = _ring_slot(v, h)
+    if use_table:
+        for u in range(w):
+            d = depth[v, u]
+            PR[0, s, u + 1] = np.float32(rays[v, u, 0]) * d
+            PR[1, s, u + 1] = np.float32(rays[v, u, 1]) * d
+            PR[2, s, u + 1] = d
+    else:
+        yr = ry32[v]
+        for u in range(w):
+            d = depth[v, u]
+            PR[0, s, u + 1] = rx32[u] * d
+            PR[1, s, u + 1] = yr * d
+            PR[2, s, u + 1] = d
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _normals_edges_row(PR, r, h, k2s, k2d, normals, valid, E, S):  # pragma: no cover - compiled
+    """Edge flags and normals of image row ``r`` from the point ring ``PR`` (rows r − 1 … r + 1).
+
+    Edge flags, for the next warp's quad codes and for the normals: E[0] edge to the right, E[1] edge
+    down, E[2] diagonal (v, u)–(v+1, u+1), E[3] diagonal (v, u+1)–(v+1, u); an edge is usable when
+    both ends are known and it is not stretched (a zero point, unknown or outside, fails). Rows of E
+    above ``r`` must be done. ``S`` (3, W + 1) bool: the side flags the normals read (zeroed by the
+    caller: row 0 = edge right, shifted by one; rows 1, 2 = edge down of rows r, r − 1 by parity)."""
+    w = PR.shape[2] - 2
+    t = _ring_slot(r - 1, h)
+    c = _ring_slot(r, h)
+    b = _ring_slot(r + 1, h)
+    for u in range(1, w + 1):
+        xc, yc, zc = PR[0, c, u], PR[1, c, u], PR[2, c, u]
+        xr, yr, zr = PR[0, c, u + 1], PR[1, c, u + 1], PR[2, c, u + 1]
+        xb, yb, zb = PR[0, b, u], PR[1, b, u], PR[2, b, u]
+        xd, yd, zd = PR[0, b, u + 1], PR[1, b, u + 1], PR[2, b, u + 1]
+        E[0, r, u - 1] = _edge_ok(xc, yc, zc, xr, yr, zr, k2s)
+        E[1, r, u - 1] = _edge_ok(xc, yc, zc, xb, yb, zb, k2s)
+        E[2, r, u - 1] = _edge_ok(xc, yc, zc, xd, yd, zd, k2d)
+        E[3, r, u - 1] = _edge_ok(xr, yr, zr, xb, yb, zb, k2d)
+    # the side edges of row r (and down from row r − 1) for the normals, in local rows
+    sb = 1 + r % 2
+    st = 1 + (r + 1) % 2
+    for u in range(w):
+        S[0, u + 1] = E[0, r, u]
+        S[sb, u] = E[1, r, u]
+    if r == 0:
+        for u in range(w):
+            S[st, u] = False
+    for u in range(1, w + 1):
+        xc, yc, zc = PR[0, c, u], PR[1, c, u], PR[2, c, u]
+        xl, yl, zl = PR[0, c, u - 1], PR[1, c, u - 1], PR[2, c, u - 1]
+        xr, yr, zr = PR[0, c, u + 1], PR[1, c, u + 1], PR[2, c, u + 1]
+        xt, yt, zt = PR[0, t, u], PR[1, t, u], PR[2, t, u]
+        xb, yb, zb = PR[0, b, u], PR[1, b, u], PR[2, b, u]
+        lo = S[0, u - 1]
+        ro = S[0, u]
+        to = S[st, u - 1]
+        bo = S[sb, u - 1]
+        # central difference where both neighbours are usable, else the one-sided difference
+        hx = (xr if ro else xc) - (xl if lo else xc)
+        hy = (yr if ro else yc) - (yl if lo else yc)
+        hz = (zr if ro else zc) - (zl if lo else zc)
+        gx = (xb if bo else xc) - (xt if to else xc)
+        gy = (yb if bo else yc) - (yt if to else yc)
+        gz = (zb if bo else zc) - (zt if to else zc)
+        nx = hy * gz - hz * gy
+        ny = hz * gx - hx * gz
+        nz = hx * gy - hy * gx
+        n2 = nx * nx + ny * ny + nz * nz
+        ok = (lo or ro) and (to or bo) and n2 > 0.0
+        s = np.float32(1.0) / np.sqrt(n2) if ok else np.float32(0.0)
+        s = -s if nx * xc + ny * yc + nz * zc > 0.0 else s  # face the camera: n · P < 0
+        normals[r, u - 1, 0] = nx * s
+        normals[r, u - 1, 1] = ny * s
+        normals[r, u - 1, 2] = nz * s
+        valid[r, u - 1] = ok
+
+
 @numba.njit(**_NJ)
-def _merge_zbuffer(izbuf, wbuf, nd, nk, near_new, max_weight, thr_rel, thr_abs, rays, use_table, rx, ry,
-                   P):  # pragma: no cover - compiled
-    """Merge straight from the warp's z-buffer, and write the merged map's point planes into the
-    interior of ``P``. Also returns the pixel counts: averaged, replaced (both valid but
-    disagreeing), new only, warped only (held), warped only but dropped as occluded."""
+def _merge_normals(zw, nd, nk, near_new, max_weight, thr_rel, thr_abs, rays, use_table, rx32, ry32, k2s, k2d,
+                   E):  # pragma: no cover - compiled
+    """Merge straight from the warp's z-buffer and, one row behind, compute the merged map's normals and
+    its edge flags (into ``E``, for the next warp). Returns depth, weight, known, normals, normals'
+    validity and the pixel counts: averaged, replaced (both valid but disagreeing), new only, warped
+    only (held), warped only but dropped as occluded."""
     h, w = nd.shape
     depth = np.empty((h, w), np.float32)
     weight = np.empty((h, w), np.float32)
     known = np.empty((h, w), np.bool_)
+    normals = np.empty((h, w, 3), np.float32)
+    valid = np.empty((h, w), np.bool_)
+    PR = np.zeros((3, 4, w + 2), np.float32)
+    S = np.zeros((3, w + 1), np.bool_)
     n_avg = n_rep = n_new = n_held = n_occ = 0
-    r_x = np.empty(w, np.float32)
-    r_y = np.empty(w, np.float32)
     for v in range(h):
-        if use_table:
-            for u in range(w):
-                r_x[u] = rays[v, u, 0]
-                r_y[u] = rays[v, u, 1]
-        else:
-            for u in range(w):
-                r_x[u] = rx[u]
-                r_y[u] = ry[v]
         for u in range(w):
-            iz = abs(izbuf[v, u])
-            a_ok = iz > 0.0
-            a = np.float32(1.0 / iz)
+            a = abs(zw[v, 2 * u + _ZI])
+            a_ok = a < np.inf
             b = nd[v, u]
             b_ok = nk[v, u] & (b > 0.0) & (b < np.inf)
-            d, wt, averaged, occluded = _merge_pixel(a, a_ok, wbuf[v, u], b, b_ok, near_new[v, u], max_weight,
+            d, wt, averaged, occluded = _merge_pixel(a, a_ok, zw[v, 2 * u + _WI], b, b_ok, near_new[v, u], max_weight,
                                                      thr_rel, thr_abs)
             depth[v, u] = d
             weight[v, u] = wt
@@ -657,82 +935,56 @@ def _merge_zbuffer(izbuf, wbuf, nd, nk, near_new, max_weight, thr_rel, thr_abs, 
             n_new += b_ok & (not a_ok)
             n_held += a_ok & (not b_ok) & (not occluded)
             n_occ += occluded
-        for u in range(w):
-            d = depth[v, u]
-            P[0, v + 1, u + 1] = r_x[u] * d
-            P[1, v + 1, u + 1] = r_y[u] * d
-            P[2, v + 1, u + 1] = d
-    return depth, weight, known, np.array([n_avg, n_rep, n_new, n_held, n_occ])
+        _points_row(depth, v, h, rays, use_table, rx32, ry32, PR)
+        if v >= 1:
+            _normals_edges_row(PR, v - 1, h, k2s, k2d, normals, valid, E, S)
+    if h >= 1:
+        _normals_edges_row(PR, h - 1, h, k2s, k2d, normals, valid, E, S)
+    return depth, weight, known, normals, valid, np.array([n_avg, n_rep, n_new, n_held, n_occ])
 
 
 @numba.njit(**_NJ)
-def _normals(P, k2):  # pragma: no cover - compiled
-    h, w = P.shape[1] - 2, P.shape[2] - 2
+def _normals_edges(depth, rays, use_table, rx32, ry32, k2s, k2d, E):  # pragma: no cover - compiled
+    """Normals, their validity and the edge flags (into ``E``) of a clean depth map."""
+    h, w = depth.shape
     normals = np.empty((h, w, 3), np.float32)
     valid = np.empty((h, w), np.bool_)
-    for v in range(1, h + 1):
-        for u in range(1, w + 1):
-            xc, yc, zc = P[0, v, u], P[1, v, u], P[2, v, u]
-            xl, yl, zl = P[0, v, u - 1], P[1, v, u - 1], P[2, v, u - 1]
-            xr, yr, zr = P[0, v, u + 1], P[1, v, u + 1], P[2, v, u + 1]
-            xt, yt, zt = P[0, v - 1, u], P[1, v - 1, u], P[2, v - 1, u]
-            xb, yb, zb = P[0, v + 1, u], P[1, v + 1, u], P[2, v + 1, u]
-            lo = _edge_ok(xc, yc, zc, xl, yl, zl, k2)
-            ro = _edge_ok(xc, yc, zc, xr, yr, zr, k2)
-            to = _edge_ok(xc, yc, zc, xt, yt, zt, k2)
-            bo = _edge_ok(xc, yc, zc, xb, yb, zb, k2)
-            # central difference where both neighbours are usable, else the one-sided difference
-            hx = (xr if ro else xc) - (xl if lo else xc)
-            hy = (yr if ro else yc) - (yl if lo else yc)
-            hz = (zr if ro else zc) - (zl if lo else zc)
-            gx = (xb if bo else xc) - (xt if to else xc)
-            gy = (yb if bo else yc) - (yt if to else yc)
-            gz = (zb if bo else zc) - (zt if to else zc)
-            nx = hy * gz - hz * gy
-            ny = hz * gx - hx * gz
-            nz = hx * gy - hy * gx
-            n2 = nx * nx + ny * ny + nz * nz
-            ok = (lo or ro) and (to or bo) and n2 > 0.0
-            s = np.float32(1.0) / np.sqrt(n2) if ok else np.float32(0.0)
-            s = -s if nx * xc + ny * yc + nz * zc > 0.0 else s  # face the camera: n · P < 0
-            normals[v - 1, u - 1, 0] = nx * s
-            normals[v - 1, u - 1, 1] = ny * s
-            normals[v - 1, u - 1, 2] = nz * s
-            valid[v - 1, u - 1] = ok
+    PR = np.zeros((3, 4, w + 2), np.float32)
+    S = np.zeros((3, w + 1), np.bool_)
+    for v in range(h):
+        _points_row(depth, v, h, rays, use_table, rx32, ry32, PR)
+        if v >= 1:
+            _normals_edges_row(PR, v - 1, h, k2s, k2d, normals, valid, E, S)
+    if h >= 1:
+        _normals_edges_row(PR, h - 1, h, k2s, k2d, normals, valid, E, S)
     return normals, valid
 
 
 class _Workspace:
-    """Scratch arrays of the warp for one image size, kept between frames (see the note above)."""
+    """Image-sized scratch of the merger for one image size, kept between frames (see the note above)."""
 
     def __init__(self, height: int, width: int) -> None:
         h, w = height, width
-        # point planes of the last merged map and of the one being merged, swapped every frame
-        # (the one-pixel border stays 0)
-        self.P = [np.zeros((3, h + 2, w + 2), np.float32), np.zeros((3, h + 2, w + 2), np.float32)]
-        self.V = np.empty((3, h, w), np.float64)
-        self.G = np.empty((h, w), np.float32)
-        self.code = np.zeros((h + 1, w + 1), np.uint8)  # the border stays 0
-        self.rim = np.empty((h, w), np.bool_)
-        self.izbuf = np.empty((h, w), np.float64)
-        self.wbuf = np.empty((h, w), np.float32)
+        # edge flags of the last merged map (written by the merge, read by the next warp)
+        self.E = np.zeros((4, h, w), np.bool_)
+        self.zw = np.empty((h, 2 * w), np.float32)  # z-buffer: (weight, z) pairs, see _warp_kernel
+        # rim splat list (only its used head is ever touched)
+        self.s_t = np.empty(h * w, np.int32)
+        self.s_z = np.empty(h * w, np.float32)
+        self.s_w = np.empty(h * w, np.float32)
         self.near_new = np.empty((h, w), np.float32)
         self.near_tmp = np.empty((h, w), np.float32)
 
 
-def _warp_into(ws: _Workspace, depth: np.ndarray, P: np.ndarray, weight: np.ndarray, rotation: np.ndarray,
-               translation: np.ndarray, cam_args: tuple, near_m: float, k_side2: float, k_diag2: float) -> None:
-    """Warp a clean depth map (with its point planes ``P`` and its weights) by the rigid move
-    p ↦ rotation · p + translation (``T_cur_from_prev``). Leaves in ``ws.izbuf`` the 1/z of each pixel
-    (negative for a rim splat, 0 where nothing landed) and in ``ws.wbuf`` its weight."""
-    rays, use_table, rx, ry, cam, dist, _, has_dist = cam_args
-    _vertices_into(depth, rays, use_table, rx, ry, np.ascontiguousarray(rotation, np.float64),
-                   np.ascontiguousarray(translation, np.float64), cam, dist, has_dist, near_m, ws.V, ws.G)
-    _codes_into(P, ws.G, np.float32(k_side2), np.float32(k_diag2), ws.code)
-    ws.izbuf.fill(0.0)
-    _raster_into(ws.V, ws.code, weight, ws.izbuf, ws.wbuf)
-    _rim_flags_into(ws.code, ws.rim)
-    _rim_splat(ws.V, ws.code, weight, ws.rim, ws.izbuf, ws.wbuf)
+def _warp_into(ws: _Workspace, depth: np.ndarray, weight: np.ndarray, rotation: np.ndarray,
+               translation: np.ndarray, cam_args: tuple, near_m: float) -> None:
+    """Warp a clean depth map (with its edge flags in ``ws.E`` and its weights) by the rigid move
+    p ↦ rotation · p + translation (``T_cur_from_prev``). Leaves in ``ws.zw`` the z-depth of each
+    pixel (negated for a rim splat, +inf where nothing landed) and its weight."""
+    rays, use_table, rx, ry, cam, dist, _, has_dist, rx32, ry32 = cam_args
+    _warp_kernel(depth, ws.E, weight, np.ascontiguousarray(rotation, np.float64),
+                 np.ascontiguousarray(translation, np.float64), rays, use_table, rx, ry, rx32, ry32, cam, dist,
+                 has_dist, float(near_m), ws.zw, ws.s_t, ws.s_z, ws.s_w)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -754,9 +1006,10 @@ def _camera(intrinsics: Intrinsics) -> tuple:
     rays = np.ascontiguousarray(pixel_rays(i)[..., :2]) if use_table else np.zeros((1, 1, 2))
     cam = np.array([i.fx, i.fy, i.cx, i.cy])
     dist = i.distortion.coefficients
-    for a in (rx, ry, rays, cam, dist):
+    rx32, ry32 = rx.astype(np.float32), ry.astype(np.float32)
+    for a in (rx, ry, rays, cam, dist, rx32, ry32):
         a.setflags(write=False)
-    return rays, use_table, rx, ry, cam, dist, math.sqrt(i.fx * i.fy), use_table
+    return rays, use_table, rx, ry, cam, dist, math.sqrt(i.fx * i.fy), use_table, rx32, ry32
 
 
 def _stretch_k2(max_stretch: float, f: float) -> tuple[float, float]:
@@ -840,12 +1093,13 @@ def warp_depth(
         raise RangeError(f"near_m: expected a finite value > 0, got {near_m}")
     _check_weights(wts, kn, "weight")
     cam_args = _camera(intr)
-    rays, use_table, rx, ry = cam_args[:4]
+    rays, use_table = cam_args[:2]
+    rx32, ry32 = cam_args[8:10]
     clean = _clean_depth(depth, kn)
     ws = _Workspace(*shape)
-    _points_into(clean, rays, use_table, rx, ry, ws.P[0])
-    _warp_into(ws, clean, ws.P[0], wts, T.rotation, T.translation, cam_args, float(near_m), k_side2, k_diag2)
-    return _unpack_warp(ws.izbuf, ws.wbuf)
+    _normals_edges(clean, rays, use_table, rx32, ry32, np.float32(k_side2), np.float32(k_diag2), ws.E)
+    _warp_into(ws, clean, wts, T.rotation, T.translation, cam_args, float(near_m))
+    return _unpack_warp(ws.zw)
 
 
 def _check_weights(weights: np.ndarray, known: np.ndarray, name: str) -> None:
@@ -912,7 +1166,8 @@ def merge_depth(
     if isinstance(r, bool) or not isinstance(r, (int, np.integer)) or r < 0:
         raise RangeError(f"occlusion_radius_px: expected an integer ≥ 0, got {r!r}")
     near_new = _window_min_into(nd, nk, int(r), np.empty(shape, np.float32), np.empty(shape, np.float32))
-    return _merge_arrays(wd, ww, wk, nd, nk, near_new, max_weight, threshold, threshold_abs_m)
+    return _merge_arrays(wd, ww, wk, nd, nk, near_new, np.float32(max_weight), np.float32(threshold),
+                         np.float32(threshold_abs_m))
 
 
 def normals_from_depth(
@@ -943,11 +1198,13 @@ def normals_from_depth(
     intr = _check_intrinsics(intrinsics)
     depth = _check_depth(depth_m, "depth_m", intr.shape)
     kn = _check_known(known, "known", intr.shape)
-    k_side2, _ = _stretch_k2(_check_stretch(max_stretch, "max_stretch"), _camera(intr)[6])
-    rays, use_table, rx, ry = _camera(intr)[:4]
-    P = np.zeros((3, intr.height + 2, intr.width + 2), np.float32)
-    _points_into(_clean_depth(depth, kn), rays, use_table, rx, ry, P)
-    return _normals(P, np.float32(k_side2))
+    k_side2, k_diag2 = _stretch_k2(_check_stretch(max_stretch, "max_stretch"), _camera(intr)[6])
+    cam_args = _camera(intr)
+    rays, use_table = cam_args[:2]
+    rx32, ry32 = cam_args[8:10]
+    edges = np.empty((4, intr.height, intr.width), np.bool_)  # not needed here
+    return _normals_edges(_clean_depth(depth, kn), rays, use_table, rx32, ry32, np.float32(k_side2),
+                          np.float32(k_diag2), edges)
 
 
 def kinect_rgbd_frame(
@@ -1048,7 +1305,6 @@ class KinectMerger:
         """Forget the history: the next step starts from its own depth alone."""
         self._depth: np.ndarray | None = None  # last merged depth (0 where unknown)
         self._weight: np.ndarray | None = None
-        self._P: np.ndarray | None = None  # its point planes (one of the workspace's two)
         self._T_world_from_prev: RigidTransform | None = None
 
     @property
@@ -1073,22 +1329,22 @@ class KinectMerger:
         cfg = self.config
         ws = self._ws
         if self._depth is None:
-            ws.izbuf.fill(0.0)
+            ws.zw.view(np.uint64).fill(_EMPTY_KEY)
         else:
             # T_cur_from_prev = inv(T_world_from_cur) @ T_world_from_prev, as rotation and translation
             Rc, tc = T.rotation, T.translation
             Rp, tp = self._T_world_from_prev.rotation, self._T_world_from_prev.translation
-            _warp_into(ws, self._depth, self._P, self._weight, Rc.T @ Rp, Rc.T @ (tp - tc), self._cam, cfg.near_m,
-                       self._k_side2, self._k_diag2)
+            _warp_into(ws, self._depth, self._weight, Rc.T @ Rp, Rc.T @ (tp - tc), self._cam, cfg.near_m)
         near_new = _window_min_into(depth, kn, cfg.occlusion_radius_px, ws.near_tmp, ws.near_new)
-        P = ws.P[1] if self._P is ws.P[0] else ws.P[0]
-        rays, use_table, rx, ry = self._cam[:4]
-        md, mw, mk, counts = _merge_zbuffer(ws.izbuf, ws.wbuf, depth, kn, near_new, cfg.max_weight, cfg.threshold,
-                                           cfg.threshold_abs_m, rays, use_table, rx, ry, P)
-        normals, nvalid = _normals(P, np.float32(self._k_side2))
+        rays, use_table = self._cam[:2]
+        rx32, ry32 = self._cam[8:10]
+        md, mw, mk, normals, nvalid, counts = _merge_normals(
+            ws.zw, depth, kn, near_new, np.float32(cfg.max_weight), np.float32(cfg.threshold),
+            np.float32(cfg.threshold_abs_m), rays, use_table, rx32, ry32, np.float32(self._k_side2),
+            np.float32(self._k_diag2), ws.E)
         for a in (md, mw, mk):
             a.setflags(write=False)  # the merger reads depth and weights again next frame
-        self._depth, self._weight, self._P, self._T_world_from_prev = md, mw, P, T
+        self._depth, self._weight, self._T_world_from_prev = md, mw, T
         return KinectMergeResult(
             md, mk, mw, normals, nvalid, int(counts[0] + counts[1] + counts[3] + counts[4]),
             int(counts[0]), int(counts[1]), int(counts[2]), int(counts[3]), int(counts[4]),
