@@ -524,7 +524,7 @@ def _reference_translate(em, offset, max_splat_px=8, max_rel_jump=0.2):
     ground truth above."""
     import math
 
-    from rgbd_envmap.envmap import _reproject_row, _trig_columns
+    from rgbd_envmap.translation import _reproject_row, _trig_columns
 
     h, w = em.height, em.width
     rs, rc, cs, cc = _trig_columns(h, w)
@@ -585,7 +585,7 @@ def test_translate_kernel_equals_the_per_pixel_reference(offset):
     np.testing.assert_array_equal(got.depth_m, ref.depth_m)
     np.testing.assert_array_equal(got.radiance_planes, ref.radiance_planes)
     # The source map is intact and the key buffer clean for the next call.
-    from rgbd_envmap.envmap import _NO_KEY, _translate_buffers
+    from rgbd_envmap.translation import _NO_KEY, _translate_buffers
 
     np.testing.assert_array_equal(em.depth_m, depth)
     assert (_translate_buffers(h, w)[0] == _NO_KEY).all()
@@ -594,7 +594,7 @@ def test_translate_kernel_equals_the_per_pixel_reference(offset):
 def test_float32_atan2_matches_libm():
     import math
 
-    from rgbd_envmap.envmap import _atan2_f32
+    from rgbd_envmap.translation import _atan2_f32
 
     rng = np.random.default_rng(4)
     pts = np.concatenate([rng.normal(size=(5000, 2)), [[0, 1], [0, -1], [1, 0], [-1, 1e-30], [1e-30, 1e-30]]])
