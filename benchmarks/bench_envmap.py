@@ -3,7 +3,8 @@
 and the §6.2 translation), the current kernels side by side with the previous ones.
 
     python benchmarks/bench_envmap.py [--repeats N] [--session S] [--recorded PATH] [--recorded-rounds R]
-                                      [--only-recorded] [--json PATH]
+                                      [--only-recorded] [--only-translation] [--translation-baseline PATH]
+                                      [--json PATH]
 
 1. One frame: a 4.2 s capture of the default scene warms the map up; the timed frame is the next.
 2. A session (``--session``, default 20 s of the default orbit; 0 skips it): every pairs and
@@ -16,7 +17,11 @@ and the §6.2 translation), the current kernels side by side with the previous o
    sample to EM*" exactly as ``capture.process`` times them, and the ``update`` call alone, beside
    the previous kernels with the previous numpy gathers on a mirror map; bit-identity of the maps.
 4. Translation by 10 cm of the 4.2 s map (23 % covered), of the session's final map (89 %) and of
-   the ray-cast true map (everything covered).
+   the ray-cast true map (everything covered). ``--translation-baseline PATH`` adds another
+   version of ``rgbd_envmap/translation.py`` (a copy of the file) timed alternately in the same
+   run, with the count of pixels it gives differently; ``--only-translation`` times just the
+   translations of the recorded session's final map and the true map (``--translation-rounds``
+   repeats each, default ``max(5, repeats // 5)``).
 
 Each pair of rows is timed alternately in the same run (the machine is shared and noisy). Single
 thread: every kernel is serial numba. The previous kernels (before the issue-4 speed work) are kept
@@ -27,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib.util
 import json
 import math
 import sys
@@ -676,17 +682,31 @@ def recorded_session(root: Path, rows: dict, rounds: int) -> EnvironmentMap | No
     return cap.em
 
 
-def translations(maps: dict[str, EnvironmentMap], r: int, rows: dict) -> None:
+def load_translation_module(path: Path):
+    """Another version of rgbd_envmap/translation.py (a copy of the file), imported under its own name."""
+    name = path.stem
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # numba's cache pickles the module name
+    spec.loader.exec_module(module)
+    return module
+
+
+def translations(maps: dict[str, EnvironmentMap], r: int, rows: dict, baseline=None, previous: bool = True) -> None:
     off = np.array([0.1, 0.0, 0.0])
     for name, em in maps.items():
-        diff = _maps_differ(translate(em, off), old_translate(em, off))
-        print(f"translate {name}: {diff} of {em.height * em.width} pixels differ from the previous kernel "
-              f"(float32 landing positions)")
-        rows.update(time_alternating({
-            f"translate 2000x1000 by 10 cm, {name} (depth)": lambda em=em: translate(em, off),
-            f"  previous kernel, {name}": lambda em=em: old_translate(em, off),
-            f"  gardner, {name}": lambda em=em: translate(em, off, "gardner"),
-        }, r))
+        fns = {f"translate 2000x1000 by 10 cm, {name} (depth)": lambda em=em: translate(em, off)}
+        if baseline is not None:
+            diff = _maps_differ(translate(em, off), baseline.translate_map(em, off))
+            print(f"translate {name}: {diff} of {em.height * em.width} pixels differ from the baseline module")
+            fns[f"  baseline module, {name}"] = lambda em=em: baseline.translate_map(em, off)
+        if previous:
+            diff = _maps_differ(translate(em, off), old_translate(em, off))
+            print(f"translate {name}: {diff} of {em.height * em.width} pixels differ from the previous kernel "
+                  f"(float32 landing positions)")
+            fns[f"  previous kernel, {name}"] = lambda em=em: old_translate(em, off)
+            fns[f"  gardner, {name}"] = lambda em=em: translate(em, off, "gardner")
+        rows.update(time_alternating(fns, r))
 
 
 def main() -> None:
@@ -697,8 +717,15 @@ def main() -> None:
                         help="recorded session for the capture-stage rows (skipped when missing)")
     parser.add_argument("--recorded-rounds", type=int, default=2, help="replays of the recorded session (0: skip it)")
     parser.add_argument("--only-recorded", action="store_true", help="the recorded-session rows only")
+    parser.add_argument("--only-translation", action="store_true",
+                        help="the translation rows only, for the recorded session's final map and the true map")
+    parser.add_argument("--translation-baseline", type=Path, default=None,
+                        help="a copy of another version of rgbd_envmap/translation.py to time alternately")
+    parser.add_argument("--translation-rounds", type=int, default=None, help="repeats per translation row")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
+    baseline = load_translation_module(args.translation_baseline) if args.translation_baseline else None
+    t_rounds = args.translation_rounds or max(5, args.repeats // 5)
     if args.only_recorded:
         rows: dict[str, dict] = {}
         recorded_session(args.recorded, rows, max(1, args.recorded_rounds))
@@ -712,6 +739,20 @@ def main() -> None:
                          TangoDeviceConfig(colour=ColourCameraConfig(width=640, height=360)), seed=0)
 
     sim = make_sim()
+    if args.only_translation:
+        rows = {}
+        maps = {}
+        em = recorded_session(args.recorded, {}, 1)
+        if em is not None:
+            maps["recorded session's final map"] = em
+        origin = sim.scene.virtual_object_position
+        gt = render_envmap(sim.raycaster, origin, 1000, 2000, 0.0)
+        maps["true map"] = EnvironmentMap.from_arrays(gt.radiance, gt.distance_m, gt.valid, origin)
+        translations(maps, t_rounds, rows, baseline, previous=False)
+        print_rows(rows)
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=2) + "\n")
+        return
     frames = [res for _, res in ingested_frames(sim, 4.2)]
     rows: dict[str, dict] = {}
     r = args.repeats
@@ -724,7 +765,7 @@ def main() -> None:
     origin = sim.scene.virtual_object_position
     gt = render_envmap(sim.raycaster, origin, 1000, 2000, 0.0)
     maps["true map"] = EnvironmentMap.from_arrays(gt.radiance, gt.distance_m, gt.valid, origin)
-    translations(maps, max(5, r // 5), rows)
+    translations(maps, t_rounds, rows, baseline)
     print_rows(rows)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + "\n")

@@ -11,7 +11,10 @@ Implementation: each row is reprojected (float32, vectorised) into a 3-row ring 
 splatted, so there are no full-map temporaries; the z-buffer is one int64 key per target pixel,
 float32 distance bits above the source pixel's index, so ``min`` keeps the closest sample and, on
 equal distances, the first in raster order, exactly what a sequential "closer wins" gives; a last
-pass writes each output pixel once. :func:`rgbd_envmap.envmap.translate` is the public entry point.
+pass writes each output pixel once. Both the key updates and the last pass's colour gather
+prefetch ahead (:func:`_prefetch`): where the move shears or magnifies (the table under the
+origin), neighbouring output pixels come from source rows far apart, and those loads missed the
+cache. :func:`rgbd_envmap.envmap.translate` is the public entry point.
 
 References:
     Monroy, Hudon, Smolic (2018), §6.2.
@@ -25,6 +28,10 @@ import threading
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from rgbd_envmap.checks import check_array, check_method
 from rgbd_envmap.envmap import (
@@ -75,6 +82,32 @@ def _atan2_f32(y, x):  # pragma: no cover - compiled
     a = _F32_PI - a if x < np.float32(0.0) else a
     return -a if y < np.float32(0.0) else a
 
+
+@intrinsic
+def _prefetch(typingctx, arr, i):  # pragma: no cover - compiled
+    """Hint that a[i] of a 1-D array will be read soon (LLVM's prefetch: never faults, so i may be
+    out of range)."""
+    sig = types.void(arr, i)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = builder.gep(ary.data, [context.cast(builder, args[1], signature.args[1], types.intp)])
+        ptr = builder.bitcast(ptr, ir.IntType(8).as_pointer())
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [ptr, ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+#: The output pass prefetches the source colours of the pixel this many pixels ahead: the winners of
+#: neighbouring target pixels come from source rows far apart where the move magnifies or shears.
+_GATHER_AHEAD = 64
+
+#: The z-buffer updates prefetch the first target key of the source pixel this many columns ahead.
+_SCATTER_AHEAD = 16
 
 #: The key of a target pixel no source pixel has landed on (see :func:`_translate_kernel`).
 _NO_KEY = np.iinfo(np.int64).max
@@ -231,7 +264,9 @@ def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, 
     target pixel, float32 distance bits above the source pixel's index, so ``min`` keeps the
     closest sample and, on equal distances, the first in raster order: what a sequential
     "closer wins" gives, but branch-free and independent of the visiting order. A final pass
-    writes every output pixel once from its key and resets the keys."""
+    writes every output pixel once from its key and resets the keys. Key updates prefetch the
+    first target of the pixel :data:`_SCATTER_AHEAD` columns on, the final pass the source
+    colours of the pixel :data:`_GATHER_AHEAD` on (prefetches never fault and change no result)."""
     height, width = depth.shape
     key_flat = key.reshape(height * width)
     min_col_limit = col_limit.min()
@@ -264,6 +299,8 @@ def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, 
         _extents_row(depth, valid, r, up, down, pv, pu, sr, su, sd, max_rel_jump, ext_v, ext_u)
         _splat_targets(valid, r, pv, pu, pd, sr, ext_v, ext_u, height, width, max_splat, min_col_limit, ta, tb, tc, td)
         for c in range(width):
+            t_pf = ta[_mn(c + _SCATTER_AHEAD, width - 1)]
+            _prefetch(key_flat, int(t_pf) if t_pf >= 0.0 else 0)
             t_a = ta[c]
             if t_a == _SKIP:
                 continue
@@ -309,6 +346,12 @@ def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, 
     depth_flat = out_depth.reshape(n)
     valid_flat = out_valid.reshape(n)
     for p in range(n):
+        if p + _GATHER_AHEAD <= p_hi:
+            k_ahead = key_flat[p + _GATHER_AHEAD]
+            s_ahead = k_ahead & 0xFFFFFFFF if k_ahead != _NO_KEY else 0
+            _prefetch(src_flat[0], s_ahead)
+            _prefetch(src_flat[1], s_ahead)
+            _prefetch(src_flat[2], s_ahead)
         if p < p_lo or p > p_hi:
             depth_flat[p] = 0.0
             valid_flat[p] = False
