@@ -73,6 +73,7 @@ class AccuracyTracker:
             "reason": cap.reason.split(" (")[0], "n_pairs": cap.n_pairs,
             "ccm_mse": float(cap.ccm.mse) if cap.ccm is not None else float("nan"),
             "taken": cap.update.taken if cap.update is not None else 0,
+            "taken_freed": cap.update.taken_freed if cap.update is not None else 0,
             "bands": step.bands,
         }
         gains = self._gains.get(step.colour_timestamp_ns)

@@ -37,6 +37,7 @@ from rgbd_envmap.colour import CCMResult, apply_ccm, estimate_ccm
 from rgbd_envmap.depth.reliability import discontinuity_test
 from rgbd_envmap.envmap import (
     EnvironmentMap,
+    SeenDepth,
     UpdateConfig,
     UpdateStats,
     _frame_pairs,
@@ -182,5 +183,6 @@ class EnvironmentCapture:
         pts, rgb, fill_only = _frame_samples(frame.depth_m, mask, frame.intrinsics, frame.T_world_from_cam, frame.rgb, near_edge)
         colours = apply_ccm(rgb, matrix)
         focal = 0.5 * (frame.intrinsics.fx + frame.intrinsics.fy)
+        seen = SeenDepth(raw.depth_m, raw.known, raw.intrinsics, raw.T_world_from_cam)  # measured only
         return update(self.em, pts, colours, frame.T_world_from_cam.translation, focal, self.config.update,
-                      None if near_edge is None else fill_only)
+                      None if near_edge is None else fill_only, seen)

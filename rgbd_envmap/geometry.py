@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 
+import numba
 import numpy as np
 
 from rgbd_envmap.checks import check_array, check_positive_int
@@ -25,6 +26,7 @@ from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.types import Distortion, Intrinsics, RigidTransform
 
 __all__ = [
+    "brown_distort",
     "distort_normalized",
     "undistort_normalized",
     "project_points",
@@ -41,6 +43,17 @@ __all__ = [
 
 #: Axis flip between OpenCV (x right, y down, z forward) and OpenGL (x right, y up, z backward) cameras.
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+@numba.njit(cache=True)
+def brown_distort(x, y, k1, k2, p1, p2, k3):  # pragma: no cover - compiled
+    """Brown's model on one normalised point (x, y) = (X/Z, Y/Z), for numba kernels: the distorted
+    (x, y). :func:`distort_normalized` is the array version (same formula)."""
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return xd, yd
 
 
 def distort_normalized(xy: np.ndarray, distortion: Distortion) -> np.ndarray:

@@ -54,7 +54,7 @@ __all__ = [
 #: stage names, in pipeline order, and the paper's Table 1 figure for each (None: no counterpart).
 STAGES = (
     "Warp + merge depth (Kinect)", "Depth image to RGB-D",
-    "YUV420 to linear RGB", "Point cloud to RGB-D", "Mark reliable RGB-D", "Hole filling RGB-D",
+    "YUV420 to linear RGB", "Point cloud to RGB-D", "Denoise depth", "Mark reliable RGB-D", "Hole filling RGB-D",
     "Collect paired samples", "Compute colour correction matrix", "Calculate MSE", "Project sample to EM*",
     "EM translation", "Calculate SH coefficients*", "Select SH bands", "Shade object (PRT)",
     "Decode colour frame", "Rasterise", "Composite",
@@ -332,6 +332,7 @@ class Pipeline:
 
     def _depth_step(self, depth: DepthPacket, colour: ColourPacket, srgb8: np.ndarray) -> DepthStep:
         from rgbd_envmap.depth import fill_holes, mark_reliable
+        from rgbd_envmap.depth.denoise import denoise_frame
 
         cfg = self.config
         t = self.timer
@@ -341,6 +342,9 @@ class Pipeline:
         t.add("YUV420 to linear RGB", self._decode_ms)
         with t.stage("Point cloud to RGB-D"):
             frame, _ = rgbd_frame_from_packets(depth, srgb8, colour.T_world_from_colour, cal, cfg.ingest)
+        if cfg.ingest.denoise_half_window is not None:
+            with t.stage("Denoise depth"):
+                frame = denoise_frame(frame, half_window=cfg.ingest.denoise_half_window)
         with t.stage("Mark reliable RGB-D"):
             reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=cfg.ingest.reliability_method)
         if cfg.ingest.fill_method is None:

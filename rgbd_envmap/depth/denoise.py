@@ -37,9 +37,9 @@ import numpy as np
 from rgbd_envmap.checks import check_array, check_positive_int
 from rgbd_envmap.errors import RangeError
 from rgbd_envmap.geometry import pixel_rays
-from rgbd_envmap.types import Intrinsics
+from rgbd_envmap.types import Intrinsics, RGBDFrame
 
-__all__ = ["denoise_depth"]
+__all__ = ["denoise_depth", "denoise_frame"]
 
 
 @numba.njit(cache=True, fastmath={"reassoc", "contract"})
@@ -180,3 +180,14 @@ def denoise_depth(depth_m: np.ndarray, known: np.ndarray, intrinsics: Intrinsics
     rx, ry = _ray_planes(intrinsics)
     _plane_fit_rows(np.where(ok, z64, 1.0).astype(np.float32), ok, rx, ry, half, float(tol_rel), float(min_in), out)
     return out
+
+
+def denoise_frame(frame: RGBDFrame, *, half_window: int = 2, tol_rel: float = 0.04, min_inliers: int = 6) -> RGBDFrame:
+    """``frame`` with its known pixels' depth replaced by :func:`denoise_depth`'s; colours, mask and
+    pose unchanged. The colour of a pixel was looked up at the measured point; the fit moves the
+    point along its ray by about 1 % of its depth, which shifts it in the colour image by ~1 % of the
+    depth-to-colour parallax (a few hundredths of a pixel), so it is not looked up again."""
+    depth = denoise_depth(frame.depth_m, frame.known, frame.intrinsics, half_window=half_window, tol_rel=tol_rel,
+                          min_inliers=min_inliers)
+    depth[~frame.known] = 0.0
+    return RGBDFrame(frame.rgb, depth, frame.known, frame.T_world_from_cam, frame.intrinsics, frame.timestamp_ns)

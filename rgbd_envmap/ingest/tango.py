@@ -39,7 +39,7 @@ import numpy as np
 from rgbd_envmap.checks import check_array, check_method
 from rgbd_envmap.colour import decode_nv21, srgb8_to_linear_lut
 from rgbd_envmap.errors import InvalidInputError
-from rgbd_envmap.geometry import pixel_rays
+from rgbd_envmap.geometry import brown_distort, pixel_rays
 from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, Intrinsics, RGBDFrame, RigidTransform
 
 __all__ = [
@@ -71,11 +71,21 @@ class TangoIngestConfig:
     #: ``fill_method=None`` switches hole filling off.
     reliability_method: str = "noise_model"
     fill_method: str | None = "monroy2018"
+    #: edge-aware plane-fit denoising of the measured depth before anything else uses it
+    #: (:func:`rgbd_envmap.depth.denoise.denoise_frame`, a departure from the paper): the half-width
+    #: of its window, or None for the paper's raw depth. 1 (3×3): with carving, 24.73 → 27.59 dB
+    #: map WS-PSNR on the default session for 1.0 ms a frame; 2 (5×5) 27.68 dB for 2.3 ms
+    #: (docs/em_error_study.md).
+    denoise_half_window: int | None = 1
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.confidence_threshold <= 1.0:
             raise InvalidInputError(f"confidence_threshold: expected a value in [0, 1], got {self.confidence_threshold}")
         check_method(self.registration, REGISTRATION_METHODS, "registration")
+        if self.denoise_half_window is not None and (isinstance(self.denoise_half_window, bool)
+                                                     or not isinstance(self.denoise_half_window, int)
+                                                     or self.denoise_half_window < 1):
+            raise InvalidInputError(f"denoise_half_window: expected a positive integer or None, got {self.denoise_half_window!r}")
 
 
 @dataclass(frozen=True)
@@ -93,13 +103,7 @@ class DepthImage:
     point_index: np.ndarray
 
 
-@numba.njit(cache=True)
-def _distort(x, y, k1, k2, p1, p2, k3):  # pragma: no cover - compiled
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    return xd, yd
+_distort = brown_distort
 
 
 # The per-packet work is split into passes that each do one thing over contiguous arrays, so that the
@@ -601,8 +605,11 @@ def ingest_tango(
     ``T_world_from_colour``.
     """
     from rgbd_envmap.depth import fill_holes, mark_reliable  # the depth package imports nothing of ingest
+    from rgbd_envmap.depth.denoise import denoise_frame
 
     frame, _ = rgbd_frame_from_packets(depth_packet, srgb8, T_world_from_colour, calibration, config)
+    if config.denoise_half_window is not None:
+        frame = denoise_frame(frame, half_window=config.denoise_half_window)
     reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=config.reliability_method)
     T_cd = colour_registration(depth_packet, T_world_from_colour, calibration, config.registration)
     if config.fill_method is None:

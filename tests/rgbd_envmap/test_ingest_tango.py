@@ -17,6 +17,7 @@ from rgbd_envmap.ingest.tango import (
     colour_registration,
     decode_colour,
     depth_image_from_points,
+    ingest_tango,
     rgbd_frame_from_packets,
 )
 from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, Distortion, Intrinsics, RGBDFrame, RigidTransform
@@ -372,3 +373,26 @@ def test_one_pixel_wide_colour_image_interpolates_along_the_other_axis(axis):
     expected = np.stack([np.interp(t[inside], np.arange(len(line)), line[:, c]) for c in range(3)], axis=1)
     np.testing.assert_allclose(rgb[ok], expected, atol=COLOUR_TOL)
     assert np.all(rgb[~ok] == 0)
+
+
+def test_denoising_in_the_ingest_lowers_the_depth_error_and_keeps_the_rest(sim_frame):
+    """TangoIngestConfig.denoise_half_window: measured depth closer to the truth (simulator ground
+    truth), colours and masks untouched; off (None) is the raw measurement."""
+    sim, depth_sp, colour_sp, srgb8, frame, _ = sim_frame
+    T = colour_sp.packet.T_world_from_colour
+    raw = ingest_tango(depth_sp.packet, srgb8, T, sim.calibration, TangoIngestConfig(denoise_half_window=None))
+    den = ingest_tango(depth_sp.packet, srgb8, T, sim.calibration, TangoIngestConfig(denoise_half_window=1))
+    assert raw.frame == frame
+    np.testing.assert_array_equal(den.frame.known, frame.known)
+    np.testing.assert_array_equal(den.frame.rgb, frame.rgb)
+    assert (den.frame.depth_m[~frame.known] == 0).all()
+    true = depth_sp.groundtruth["true_depth_m"]
+    clean = frame.known & (depth_sp.groundtruth["flags"] == 0) & ~depth_sp.groundtruth["mixed"]
+    err = lambda d: np.median(np.abs(d[clean] - true[clean]) / true[clean])  # noqa: E731
+    assert err(den.frame.depth_m) < 0.6 * err(frame.depth_m)
+
+
+@pytest.mark.parametrize("bad", [0, -1, True, 1.5, "2"])
+def test_denoise_window_must_be_a_positive_integer(bad):
+    with pytest.raises(InvalidInputError, match="denoise_half_window"):
+        TangoIngestConfig(denoise_half_window=bad)

@@ -1,0 +1,142 @@
+"""Free-space carving in the map update (rule "freed", envmap.update with ``seen``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rgbd_envmap.envmap import EnvironmentMap, SeenDepth, UpdateConfig, update
+from rgbd_envmap.errors import InvalidInputError
+from rgbd_envmap.geometry import equirect_directions, project_points
+from rgbd_envmap.types import Distortion, Intrinsics, RigidTransform
+
+DEVICE = np.array([-0.5, 0.5, 0.0])
+STALE = (slice(49, 51), slice(99, 101))  # the 2×2 map pixels around +x at 100×200
+ONE = (49, 99)  # one of them
+
+
+def _pose(position=DEVICE) -> RigidTransform:
+    """A camera at ``position`` looking along world +x (camera z = x, camera x = −y, camera y = −z)."""
+    T = np.eye(4)
+    T[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]
+    T[:3, 3] = position
+    return RigidTransform(T)
+
+
+def _intr(distortion=Distortion()) -> Intrinsics:
+    return Intrinsics(width=64, height=48, fx=50.0, fy=50.0, cx=31.5, cy=23.5, distortion=distortion)
+
+
+def _stale_map() -> EnvironmentMap:
+    """A 100×200 map whose pixels along +x hold a point 1 m out (grey), the rest empty."""
+    em = EnvironmentMap(100, 200)
+    em.valid[STALE] = True
+    em.depth_m[STALE] = 1.0
+    em.radiance_planes[(slice(None), *STALE)] = 0.5
+    return em
+
+
+def _update(em, depth, known=None, config=UpdateConfig(), intr=None, pose=None):
+    """One red sample 3 m out along +x (farther than the stored 1 m: "closer" does not hold)."""
+    intr = intr or _intr()
+    known = np.ones(depth.shape, bool) if known is None else known
+    seen = SeenDepth(depth.astype(np.float32), known, intr, pose or _pose())
+    return update(em, np.array([[3.0, 0.0, 0.0]]), np.array([[1.0, 0.0, 0.0]]), DEVICE, 50.0, config, seen=seen)
+
+
+def _stored_z() -> np.ndarray:
+    """The stale pixels' points' z-depths in the camera (its z is world x, from DEVICE)."""
+    return equirect_directions(100, 200)[STALE][..., 0].ravel() * 1.0 - DEVICE[0]
+
+
+def test_seen_through_point_is_freed_and_its_depth_replaced():
+    em = _stale_map()
+    em.record_changes()
+    st = _update(em, np.full((48, 64), 3.0))
+    assert st.taken == st.taken_freed == 4
+    assert st.taken_closer == st.taken_removal == 0
+    np.testing.assert_array_equal(em.depth_m[STALE], 3.0)  # replaced, not the mean 2.0
+    np.testing.assert_array_equal(em.radiance_planes[0][STALE], 1.0)
+    ch = em.take_changes()
+    assert len(ch.index) == 4 and ch.was_valid.all()
+    np.testing.assert_array_equal(ch.old_radiance, 0.5)
+
+
+def test_tolerance_boundary():
+    limit = _stored_z() * 1.05 + 0.02  # farther than this: seen through
+    em = _stale_map()
+    assert _update(em, np.full((48, 64), limit.min() - 1e-5)).taken == 0
+    assert em.depth_m[STALE].max() == 1.0
+    em = _stale_map()
+    assert _update(em, np.full((48, 64), limit.max() + 1e-5)).taken_freed == 4
+    cfg = UpdateConfig(carve_tol_rel=0.5, carve_tol_abs_m=0.0)
+    assert _update(_stale_map(), np.full((48, 64), limit.max() + 1e-5), config=cfg).taken == 0
+
+
+def _projected(intr: Intrinsics) -> np.ndarray:
+    """(u, v) of map pixel ONE's stored point in the camera of :func:`_pose`."""
+    X = _pose().inverse().apply(equirect_directions(100, 200)[ONE][None] * 1.0)
+    return project_points(X, intr)[0][0]
+
+
+@pytest.mark.parametrize("distortion", [Distortion(), Distortion(k1=0.2, k2=-0.05, p1=0.01, p2=-0.02, k3=0.01)])
+def test_the_3x3_neighbourhood_is_where_the_point_projects(distortion):
+    """A single near (or unmeasured) pixel inside the 3×3 around the point's projection keeps the point;
+    the same two pixels farther away do not. Also checks the kernel's projection (with Brown
+    distortion) against geometry.project_points."""
+    intr = _intr(distortion)
+    u, v = _projected(intr)
+    assert min(abs(u % 1 - 0.5), abs(v % 1 - 0.5)) > 0.05  # not on a pixel edge: the test is decisive
+    row, col = int(round(v)), int(round(u))
+    flat = 49 * 200 + 99
+    for dr, dc, kept in ((0, 0, True), (1, -1, True), (-1, 1, True), (2, 0, False), (0, -2, False)):
+        depth = np.full((48, 64), 3.0)
+        depth[row + dr, col + dc] = 0.5  # a surface in front of the stored point
+        em = _stale_map()
+        _update(em, depth, intr=intr)
+        assert (em.depth_m.flat[flat] == 1.0) == kept, (dr, dc)
+        known = np.ones((48, 64), bool)
+        known[row + dr, col + dc] = False  # not measured: no evidence of free space
+        em = _stale_map()
+        _update(em, np.full((48, 64), 3.0), known, intr=intr)
+        assert (em.depth_m.flat[flat] == 1.0) == kept, (dr, dc)
+
+
+def test_unusable_evidence_frees_nothing():
+    depth = np.full((48, 64), 3.0)
+    bad = depth.copy()
+    bad[:, :] = np.nan
+    assert _update(_stale_map(), bad).taken == 0  # NaN depth counts as unmeasured
+    assert _update(_stale_map(), depth, np.zeros((48, 64), bool)).taken == 0
+    behind = _pose(np.array([2.0, 0.5, 0.0]))  # the stored point is behind this camera
+    assert _update(_stale_map(), depth, pose=behind).taken == 0
+    aside = _pose().matrix.copy()
+    aside[:3, :3] = aside[:3, :3] @ np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]])  # looks 90° sideways
+    assert _update(_stale_map(), depth, pose=RigidTransform(aside)).taken == 0  # outside the image
+
+
+def test_off_or_without_evidence_is_the_paper_update():
+    depth = np.full((48, 64), 3.0)
+    assert _update(_stale_map(), depth, config=UpdateConfig(carve=False)).taken == 0
+    em = _stale_map()
+    st = update(em, np.array([[3.0, 0.0, 0.0]]), np.array([[1.0, 0.0, 0.0]]), DEVICE, 50.0)
+    assert st.taken == 0 and st.taken_freed == 0
+
+
+def test_carving_never_empties_or_touches_unhit_pixels():
+    em = _stale_map()
+    em.valid[10, 10] = True  # a stored pixel no sample reaches
+    em.depth_m[10, 10] = 1.0
+    before = em.copy()
+    _update(em, np.full((48, 64), 3.0))
+    assert em.valid[before.valid].all()
+    assert em.depth_m[10, 10] == 1.0
+
+
+def test_bad_evidence_is_refused():
+    em = _stale_map()
+    with pytest.raises(InvalidInputError):
+        _update(em, np.full((47, 64), 3.0), np.ones((47, 64), bool))
+    with pytest.raises(Exception, match="carve_tol_rel"):
+        _update(em, np.full((48, 64), 3.0), config=UpdateConfig(carve_tol_rel=-1.0))
+    np.testing.assert_array_equal(em.depth_m[STALE], 1.0)  # nothing was written
