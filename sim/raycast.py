@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import open3d as o3d
 
@@ -74,41 +75,112 @@ class SceneRaycaster:
                 np.zeros(n, bool), np.full(n, np.inf, np.float32), np.full(n, -1, np.int32),
                 np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32), np.zeros(n, np.uint8),
             )
-        rays = np.empty((n, 6), np.float32)
-        rays[:, :3] = origins
-        rays[:, 3:] = directions
+        rays = _rays(origins, directions)
         ans = rc.cast_rays(o3d.core.Tensor.from_numpy(rays))
         dist = ans["t_hit"].numpy()
-        hit = np.isfinite(dist)
-        # Misses carry open3d's INVALID_ID (2^32 − 1); clipping sends them to the final −1 entry.
-        geom = np.minimum(ans["geometry_ids"].numpy(), len(geometry_to_object) - 1)
-        obj = geometry_to_object[geom]
         if normals:
             normal = ans["primitive_normals"].numpy()
             flip = np.einsum("ij,ij->i", normal, directions) > 0
             normal[flip] *= -1.0
         else:
             normal = np.zeros((n, 3), np.float32)
-        radiance = self._radiance(obj, origins, directions, dist, t_s)
-        return RayHits(hit, dist.astype(np.float32), obj, normal, radiance, self._flag_bits[obj])
+        # Misses carry open3d's INVALID_ID (2^32 − 1): they go to the final −1 entry.
+        hit, obj, radiance, flags = _shade_hits(rays, dist, ans["geometry_ids"].numpy(), geometry_to_object,
+                                                self._radiance_table(t_s), *self._textures, self._flag_bits)
+        return RayHits(hit, dist, obj, normal, radiance, flags)
 
-    def _radiance(self, obj, origins, directions, dist, t_s) -> np.ndarray:
-        table = np.zeros((len(self.scene.objects) + 1, 3), dtype=np.float32)
-        textured = []
+    def _radiance_table(self, t_s: float) -> np.ndarray:
+        """(objects + 1, 4) float32: each constant object's radiance at t_s (zero for textured ones and
+        the miss row), then its radiance scale at t_s."""
+        table = np.zeros((len(self.scene.objects) + 1, 4), dtype=np.float32)
         for i, o in enumerate(self.scene.objects):
             scale = o.scale_at(t_s)
             if o.texture is None:
-                table[i] = o.radiance * scale
-            else:
-                textured.append((i, o, scale))
-        out = table[obj]
-        for i, o, scale in textured:
-            sel = np.flatnonzero(obj == i)
-            if sel.size == 0:
-                continue
-            p = origins[sel].astype(np.float64) + directions[sel] * dist[sel, None].astype(np.float64)
-            corner, u, v = o.quad_frame
-            s = (p - corner) @ u / (u @ u)
-            t = (p - corner) @ v / (v @ v)
-            out[sel] = o.texture.sample(s, t) * scale
-        return out
+                table[i, :3] = o.radiance * scale  # float32 × a Python float: float32, as before
+            table[i, 3] = scale
+        return table
+
+    @property
+    def _textures(self) -> tuple[np.ndarray, ...]:
+        """Per object (and the miss row): texture kind (−1 none; :data:`_TEXTURE_KINDS`), cells (ns,
+        nt), colours (padded to the most any texture has), and the quad frame (corner, u, v) as
+        float64 rows, with u·u and v·v."""
+        if getattr(self, "_texture_arrays", None) is None:
+            objs = self.scene.objects
+            k = max([len(o.texture.colours) for o in objs if o.texture is not None], default=1)
+            kind = np.full(len(objs) + 1, -1, np.int64)
+            cells = np.ones((len(objs) + 1, 2), np.int64)
+            colours = np.zeros((len(objs) + 1, k, 3), np.float32)
+            frame = np.zeros((len(objs) + 1, 5, 3), np.float64)
+            for i, o in enumerate(objs):
+                if o.texture is None:
+                    continue
+                kind[i] = _TEXTURE_KINDS.index(o.texture.kind)
+                cells[i] = o.texture.cells
+                colours[i, : len(o.texture.colours)] = o.texture.colours
+                corner, u, v = (np.asarray(a, np.float64) for a in o.quad_frame)
+                frame[i, :3] = corner, u, v
+                frame[i, 3, 0], frame[i, 4, 0] = u @ u, v @ v
+            self._texture_arrays = (kind, cells, colours, frame)
+        return self._texture_arrays
+
+
+#: Texture kinds in the order :func:`_shade_hits` numbers them.
+_TEXTURE_KINDS = ("gradient", "checker", "patches")
+
+
+@numba.njit(cache=True)
+def _rays(origins, directions):  # pragma: no cover - compiled
+    """(N, 6) float32 rays for open3d from (N, 3) origins and directions."""
+    n = directions.shape[0]
+    rays = np.empty((n, 6), np.float32)
+    for i in range(n):
+        for k in range(3):
+            rays[i, k] = origins[i, k]
+            rays[i, 3 + k] = directions[i, k]
+    return rays
+
+
+@numba.njit(cache=True)
+def _shade_hits(rays, dist, geometry_ids, geometry_to_object, table, kind, cells, colours, frame, flag_bits):  # pragma: no cover - compiled
+    """Per ray: hit, object index (−1 for a miss), radiance (N, 3) float32 and flag bits, in one pass.
+    A textured quad's (s, t) = ((p − corner)·u / u·u, (p − corner)·v / v·v) at the float64 hit point,
+    clipped to [0, 1]; :meth:`sim.scene.Texture.sample` is the array version (tested against it)."""
+    n = dist.shape[0]
+    last = geometry_to_object.shape[0] - 1
+    hit = np.empty(n, np.bool_)
+    obj = np.empty(n, np.int32)
+    radiance = np.empty((n, 3), np.float32)
+    flags = np.empty(n, np.uint8)
+    for i in range(n):
+        g = geometry_ids[i]
+        o = geometry_to_object[g if g < last else last]
+        hit[i] = np.isfinite(dist[i])
+        obj[i] = o
+        flags[i] = flag_bits[o]
+        row = o if o >= 0 else table.shape[0] - 1
+        tk = kind[row]
+        if tk < 0:
+            radiance[i, 0], radiance[i, 1], radiance[i, 2] = table[row, 0], table[row, 1], table[row, 2]
+            continue
+        d = np.float64(dist[i])
+        px = np.float64(rays[i, 0]) + np.float64(rays[i, 3]) * d - frame[row, 0, 0]
+        py = np.float64(rays[i, 1]) + np.float64(rays[i, 4]) * d - frame[row, 0, 1]
+        pz = np.float64(rays[i, 2]) + np.float64(rays[i, 5]) * d - frame[row, 0, 2]
+        s = (px * frame[row, 1, 0] + py * frame[row, 1, 1] + pz * frame[row, 1, 2]) / frame[row, 3, 0]
+        t = (px * frame[row, 2, 0] + py * frame[row, 2, 1] + pz * frame[row, 2, 2]) / frame[row, 4, 0]
+        s = min(max(s, 0.0), 1.0)
+        t = min(max(t, 0.0), 1.0)
+        scale = table[row, 3]
+        if tk == 0:  # gradient, in float64 and then float32, as the array version
+            for k in range(3):
+                c = np.float32(np.float64(colours[row, 0, k]) * (1.0 - t) + np.float64(colours[row, 1, k]) * t)
+                radiance[i, k] = c * scale
+            continue
+        ns, nt = cells[row, 0], cells[row, 1]
+        a = min(np.int64(s * ns), ns - 1)
+        b = min(np.int64(t * nt), nt - 1)
+        j = (a + b) % 2 if tk == 1 else b * ns + a
+        for k in range(3):
+            radiance[i, k] = colours[row, j, k] * scale
+    return hit, obj, radiance, flags
