@@ -16,6 +16,7 @@ A run folder holds:
 from __future__ import annotations
 
 import csv
+import gc
 import json
 import time
 from collections.abc import Callable, Iterable
@@ -96,6 +97,10 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
         raise OSError(f"{path}: could not write PNG")
 
 
+#: packets between two young-generation garbage collections in :func:`run_pipeline`.
+_GC_EVERY = 20
+
+
 def run_pipeline(
     pipeline: Pipeline,
     packets: Iterable[tuple[DepthPacket | ColourPacket, dict]],
@@ -125,8 +130,17 @@ def run_pipeline(
     n_colour = n_depth = 0
     depth_gt: dict[int, dict] = {}
     wall0 = time.perf_counter()
+    # Garbage collection between packets, as a real-time loop schedules it, not inside a timed
+    # stage, where collections over the renderer's and the simulator's objects landed at random:
+    # depth_frame_total median 13.1 → 12.3 ms on the default session (replays, two each, alternated).
+    gc_was_enabled = gc.isenabled()
+    gc.collect()
+    gc.freeze()  # what exists now (models, scene, kernels) is never garbage: leave it out of collections
+    gc.disable()
     try:
-        for packet, gt in tqdm(packets, total=total, desc="pipeline", unit="pkt", disable=not opts.progress):
+        for i_packet, (packet, gt) in enumerate(tqdm(packets, total=total, desc="pipeline", unit="pkt", disable=not opts.progress)):
+            if i_packet % _GC_EVERY == 0:
+                gc.collect(1)
             if isinstance(packet, ColourPacket):
                 tracker.on_colour(packet.timestamp_ns, gt)
                 n_colour += 1
@@ -158,6 +172,9 @@ def run_pipeline(
                         recorder.colour(result, pose)
         pipeline.finish()
     finally:
+        gc.unfreeze()
+        if gc_was_enabled:
+            gc.enable()
         if video is not None:
             video.close()
         if recorder is not None:
