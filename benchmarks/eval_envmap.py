@@ -67,8 +67,9 @@ def run_orbit(args, w, h) -> list[str]:
     origin = sim.scene.virtual_object_position
     base = CaptureConfig(height=args.em_height, width=2 * args.em_height)
     captures = {
-        "default: correction (ridge), splat 1.0, edge margin 2 px": EnvironmentCapture(origin, base),
+        "default: correction (ridge), splat 1.0, edge margin 2 px, carving, 3×3 denoised depth": EnvironmentCapture(origin, base),
         "correction off": EnvironmentCapture(origin, replace(base, colour_correction=False)),
+        "carving off (the paper's four rules)": EnvironmentCapture(origin, replace(base, update=UpdateConfig(carve=False))),
         "edge samples may take over (paper's rules)": EnvironmentCapture(origin, replace(base, edge_margin_px=None)),
         "edge margin 1 px": EnvironmentCapture(origin, replace(base, edge_margin_px=1)),
         "edge margin 3 px": EnvironmentCapture(origin, replace(base, edge_margin_px=3)),
@@ -124,7 +125,8 @@ def run_removal(args, w, h) -> list[str]:
         step = cap.process(res.frame, res.reliable, res.filled)
         if step.update is not None and t_s >= 8.0:
             rules.update({"trusted": step.update.taken_trusted, "removal": step.update.taken_removal,
-                          "closer": step.update.taken_closer, "empty": step.update.taken_empty})
+                          "closer": step.update.taken_closer, "empty": step.update.taken_empty,
+                          "freed": step.update.taken_freed})
         if held is None and t_s >= 6.0:
             em = cap.em
             held = box_px & em.valid & (np.abs(em.depth_m - before.distance_m) < 0.05 * before.distance_m)
