@@ -852,7 +852,7 @@ def _capture_frames(em, rng, n_frames, trusted_every=0):
 
 
 @pytest.mark.parametrize("shape,radius,bands", [((40, 80), 50, 5), ((50, 100), 7, 3), ((16, 8), 50, 2),
-                                                ((120, 240), 50, 8), ((30, 60), 1, 1)])
+                                                ((120, 240), 50, 8), ((30, 60), 1, 1), ((24, 300), 70, 6)])
 def test_incremental_projection_follows_updates_exactly(shape, radius, bands):
     """After every update the coefficients equal a full projection, and the fill state equals the
     state a fresh plan gives (source and rank of every missing pixel), so errors cannot accumulate."""
@@ -866,9 +866,86 @@ def test_incremental_projection_follows_updates_exactly(shape, radius, bands):
         ref = sh.project_planar(em.radiance_planes, em.valid, bands, fill_radius_px=radius)
         assert np.abs(c - ref).max() <= 1e-6 * max(np.abs(ref).max(), 1e-30)
         src, key = _fresh_state(em.valid, radius)
-        np.testing.assert_array_equal(proj._src, src)
-        np.testing.assert_array_equal(proj._key, key)
+        state_src, state_key = proj._fill_state(shape[1])
+        np.testing.assert_array_equal(state_src, src)
+        np.testing.assert_array_equal(state_key, key)
     assert proj.incremental_updates > 10  # the incremental path ran, not only rebuilds
+
+
+def test_incremental_projection_of_a_full_map():
+    """Every pixel has data: no fill at all, the state stays all data, only colour changes (A)."""
+    from rgbd_envmap.envmap import EnvironmentMap
+
+    rng = np.random.default_rng(3)
+    rad = rng.random((30, 60, 3)).astype(np.float32)
+    em = EnvironmentMap.from_arrays(rad, np.full((30, 60), 50.0), np.ones((30, 60), bool), np.zeros(3))
+    proj = sh.IncrementalProjection(4)
+    for _ in _capture_frames(em, rng, 12, trusted_every=3):
+        c = proj.coefficients(em)
+        ref = sh.project_planar(em.radiance_planes, em.valid, 4)
+        assert np.abs(c - ref).max() <= 1e-6 * np.abs(ref).max()
+    assert proj.incremental_updates >= 6
+    src, key = proj._fill_state(60)
+    assert (src == -2).all() and (key == 0).all()
+
+
+def test_incremental_projection_rebuilds_on_log_overflow_and_large_change_sets():
+    from rgbd_envmap.envmap import EnvironmentMap, _ChangeLog
+
+    rng = np.random.default_rng(5)
+    em = EnvironmentMap(40, 80)
+    proj = sh.IncrementalProjection(3, fill_radius_px=20)
+    frames = _capture_frames(em, rng, 30)
+    next(frames)
+    proj.coefficients(em)
+    em._changes = _ChangeLog(2)  # the next update overflows this log
+    next(frames)
+    c = proj.coefficients(em)
+    assert (proj.full_projections, proj.incremental_updates) == (2, 0)
+    np.testing.assert_allclose(c, sh.project_planar(em.radiance_planes, em.valid, 3, fill_radius_px=20),
+                               rtol=1e-6, atol=1e-12)
+    next(frames)
+    proj.coefficients(em)
+    assert (proj.full_projections, proj.incremental_updates) == (2, 1)
+    proj._max_changed_fraction = 0.0  # any change set is "large": project in full
+    next(frames)
+    proj.coefficients(em)
+    assert (proj.full_projections, proj.incremental_updates) == (3, 1)
+    proj._max_changed_fraction = 1.0
+    for _ in range(5):
+        next(frames)
+        c = proj.coefficients(em)
+    assert (proj.full_projections, proj.incremental_updates) == (3, 6)
+    ref = sh.project_planar(em.radiance_planes, em.valid, 3, fill_radius_px=20)
+    assert np.abs(c - ref).max() <= 1e-6 * np.abs(ref).max()
+    src, key = _fresh_state(em.valid, 20)
+    state_src, state_key = proj._fill_state(80)
+    np.testing.assert_array_equal(state_src, src)
+    np.testing.assert_array_equal(state_key, key)
+
+
+def test_incremental_projection_key_types():
+    """One byte of fill state per pixel up to radius 62, two beyond."""
+    assert sh.IncrementalProjection(fill_radius_px=50)._key_dtype is np.uint8
+    assert sh.IncrementalProjection(fill_radius_px=62)._key_dtype is np.uint8
+    assert sh.IncrementalProjection(fill_radius_px=63)._key_dtype is np.uint16
+
+
+@pytest.mark.parametrize("records", [1, 3])
+def test_incremental_projection_with_a_tiny_record_buffer(records):
+    """Changes off the current row (copies met walking a column, switched fills) are buffered and
+    sorted by row in batches; a buffer of 1 or 3 flushes mid-row and mid-walk and must not matter."""
+    from rgbd_envmap.envmap import EnvironmentMap
+
+    rng = np.random.default_rng(7 + records)
+    em = EnvironmentMap(40, 80)
+    proj = sh.IncrementalProjection(5, fill_radius_px=9)
+    proj._records = records
+    for _ in _capture_frames(em, rng, 20, trusted_every=7):
+        c = proj.coefficients(em)
+        ref = sh.project_planar(em.radiance_planes, em.valid, 5, fill_radius_px=9)
+        assert np.abs(c - ref).max() <= 1e-6 * max(np.abs(ref).max(), 1e-30)
+    assert proj.incremental_updates > 10
 
 
 def test_incremental_projection_rebuilds_when_the_log_cannot_tell():
