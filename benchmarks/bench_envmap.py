@@ -4,7 +4,7 @@ and the §6.2 translation), the current kernels side by side with the previous o
 
     python benchmarks/bench_envmap.py [--repeats N] [--session S] [--recorded PATH] [--recorded-rounds R]
                                       [--only-recorded] [--only-translation] [--translation-baseline PATH]
-                                      [--json PATH]
+                                      [--update-baseline PATH] [--json PATH]
 
 1. One frame: a 4.2 s capture of the default scene warms the map up; the timed frame is the next.
 2. A session (``--session``, default 20 s of the default orbit; 0 skips it): every pairs and
@@ -22,6 +22,13 @@ and the §6.2 translation), the current kernels side by side with the previous o
    run, with the count of pixels it gives differently; ``--only-translation`` times just the
    translations of the recorded session's final map and the true map (``--translation-rounds``
    repeats each, default ``max(5, repeats // 5)``).
+5. ``--update-baseline PATH`` (alone): every ``update`` call of the recorded session (its inputs
+   captured once from a pipeline replay) run by the library and by another version of
+   ``rgbd_envmap/envmap.py`` (a copy of the file) on two maps that both record changes, frame by
+   frame alternately (which goes first alternates), ``--recorded-rounds`` passes from empty maps;
+   after every frame the maps, the ``UpdateStats`` and the change logs must be identical.
+   Median / p95 ms of the call, and of each frame's fastest pass (less sensitive to a noisy
+   machine).
 
 Each pair of rows is timed alternately in the same run (the machine is shared and noisy). Single
 thread: every kernel is serial numba. The previous kernels (before the issue-4 speed work) are kept
@@ -682,8 +689,79 @@ def recorded_session(root: Path, rows: dict, rounds: int) -> EnvironmentMap | No
     return cap.em
 
 
+def recorded_update_calls(root: Path) -> tuple[np.ndarray, int, int, list] | None:
+    """The arguments of every ``update`` call of the recorded session at ``root`` (pipeline replay,
+    rendering off): (origin, map height, width, [(points, colours, device, focal, config,
+    fill_only, seen)]); None when there is no session."""
+    if not (root / "calibration.json").is_file():
+        return None
+    log = SessionLog.open(root)
+    cfg = PipelineConfig()
+    cfg = dataclasses.replace(cfg, render=dataclasses.replace(cfg.render, enabled=False))
+    origin = default_origin(log)
+    calls = []
+    real = capture_module.update
+
+    def record(em, pts, col, dev, focal, config, fill_only=None, seen=None):
+        calls.append((pts.copy(), col.copy(), np.array(dev), focal, config,
+                      None if fill_only is None else fill_only.copy(), seen))
+        return real(em, pts, col, dev, focal, config, fill_only, seen)
+
+    capture_module.update = record
+    try:
+        pipe = Pipeline(cfg, log.calibration, origin)
+        for packet in log:
+            pipe.feed(packet)
+    finally:
+        capture_module.update = real
+    return origin, cfg.capture.height, cfg.capture.width, calls
+
+
+def update_against_baseline(root: Path, baseline, rounds: int, rows: dict) -> None:
+    """``update`` of the library and of ``baseline`` (another envmap module) on the recorded
+    session's update calls, alternately frame by frame; identical maps, stats and change logs
+    asserted after every frame. The first frame (into an empty map) is left out of the times."""
+    data = recorded_update_calls(root)
+    if data is None:
+        print(f"recorded session: none at {root} (bash main.sh writes it); skipped")
+        return
+    origin, h, w, calls = data
+    mods = {"current": sys.modules["rgbd_envmap.envmap"], "baseline": baseline}
+    ms = {k: np.zeros((rounds, len(calls) - 1)) for k in mods}
+    for r in range(rounds):
+        maps = {k: m.EnvironmentMap(h, w, origin) for k, m in mods.items()}
+        for em in maps.values():
+            em.record_changes()
+        for j, (pts, col, dev, focal, config, fill_only, seen) in enumerate(calls):
+            stats = {}
+            for k in (("current", "baseline") if (j + r) % 2 == 0 else ("baseline", "current")):
+                t0 = time.perf_counter()
+                stats[k] = mods[k].update(maps[k], pts, col, dev, focal, config, fill_only, seen)
+                if j > 0:
+                    ms[k][r, j - 1] = (time.perf_counter() - t0) * 1e3
+            a, b = maps["current"], maps["baseline"]
+            ca, cb = a.take_changes(), b.take_changes()
+            same = (dataclasses.astuple(stats["current"]) == dataclasses.astuple(stats["baseline"])
+                    and np.array_equal(a.valid, b.valid)
+                    and np.array_equal(a.depth_m.view(np.uint32), b.depth_m.view(np.uint32))
+                    and np.array_equal(a.radiance_planes.view(np.uint32), b.radiance_planes.view(np.uint32))
+                    and (ca.complete, ca.updates) == (cb.complete, cb.updates)
+                    and np.array_equal(ca.index, cb.index) and np.array_equal(ca.was_valid, cb.was_valid)
+                    and np.array_equal(ca.old_radiance.view(np.uint32), cb.old_radiance.view(np.uint32)))
+            if not same:
+                raise SystemExit(f"update: the baseline module differs at frame {j} of round {r}")
+    print(f"update on {len(calls)} recorded frames, {rounds} rounds: maps, stats and change logs identical "
+          f"to the baseline after every frame")
+    n = len(calls) - 1
+    rows[f"recorded session ({n} frames): update() per frame"] = _stats(list(ms["current"].ravel()))
+    rows["  baseline module"] = _stats(list(ms["baseline"].ravel()))
+    rows["recorded session: update(), each frame's fastest round"] = _stats(list(ms["current"].min(0)))
+    rows["  baseline module "] = _stats(list(ms["baseline"].min(0)))
+
+
 def load_translation_module(path: Path):
-    """Another version of rgbd_envmap/translation.py (a copy of the file), imported under its own name."""
+    """Another version of a library module (a copy of rgbd_envmap/translation.py or envmap.py), imported
+    under its own name."""
     name = path.stem
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
@@ -722,10 +800,21 @@ def main() -> None:
     parser.add_argument("--translation-baseline", type=Path, default=None,
                         help="a copy of another version of rgbd_envmap/translation.py to time alternately")
     parser.add_argument("--translation-rounds", type=int, default=None, help="repeats per translation row")
+    parser.add_argument("--update-baseline", type=Path, default=None,
+                        help="a copy of another version of rgbd_envmap/envmap.py: time update() against it "
+                             "on the recorded session (alone; --recorded-rounds passes)")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     baseline = load_translation_module(args.translation_baseline) if args.translation_baseline else None
     t_rounds = args.translation_rounds or max(5, args.repeats // 5)
+    if args.update_baseline:
+        rows = {}
+        update_against_baseline(args.recorded, load_translation_module(args.update_baseline),
+                                max(1, args.recorded_rounds), rows)
+        print_rows(rows)
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=2) + "\n")
+        return
     if args.only_recorded:
         rows: dict[str, dict] = {}
         recorded_session(args.recorded, rows, max(1, args.recorded_rounds))

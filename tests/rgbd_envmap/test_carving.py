@@ -140,3 +140,73 @@ def test_bad_evidence_is_refused():
     with pytest.raises(Exception, match="carve_tol_rel"):
         _update(em, np.full((48, 64), 3.0), config=UpdateConfig(carve_tol_rel=-1.0))
     np.testing.assert_array_equal(em.depth_m[STALE], 1.0)  # nothing was written
+
+
+@pytest.mark.parametrize("distortion", [Distortion(), Distortion(k1=0.2, k2=-0.05, p1=0.01, p2=-0.02, k3=0.01)])
+def test_row_carving_tests_equal_the_per_pixel_test(distortion):
+    """The update tests a row's candidates together (envmap._carve_tests: gather, a vectorised
+    projection, lookups); it must decide exactly as _is_free does pixel by pixel, for stored points
+    in the image, outside it, behind the camera, at the poles and across the seam, and with depths
+    that are 0, NaN or huge."""
+    from rgbd_envmap.envmap import _carve_tests, _is_free, _seen_arrays, _trig_tables
+
+    rng = np.random.default_rng(3)
+    h, w = 90, 180
+    rows, cols = _trig_tables(h, w)
+    origin = np.array([0.1, -0.05, 0.02])
+    depth = rng.uniform(1.2, 3.0, (48, 64))  # 3×3 minima nearer and farther than the stored points
+    depth[rng.random((48, 64)) < 0.02] = np.nan
+    seen = SeenDepth(depth.astype(np.float32), rng.random((48, 64)) > 0.02, _intr(distortion), _pose())
+    cam, seen_depth = _seen_arrays(seen, UpdateConfig())
+    df = rng.uniform(0.1, 1.5, h * w).astype(np.float32)
+    df[rng.random(h * w) < 0.02] = 0.0
+    df[rng.random(h * w) < 0.02] = np.nan
+    df[rng.random(h * w) < 0.01] = 1e30
+    buf, flags = np.empty((4, w)), np.zeros(w, np.uint8)
+    n_free = n_tested = 0
+    for rr in (0, 1, 30, 38, 41, 44, 45, 48, 52, 60, 88, 89):  # the camera sees rows ≈ 33–57, columns ≈ 70–110
+        base = rr * w
+        pick = np.union1d(rng.choice(w, size=rng.integers(1, w), replace=False), [0, w - 1, *range(70, 110)]).astype(np.int64)
+        pick = np.concatenate([pick, [0]])  # a spare slot past the last, as the kernel's list has
+        flags[:] = 7
+        _carve_tests(len(pick) - 1, pick, flags, rows[rr, 0], rows[rr, 1], cols, df, base, origin, cam, seen_depth, buf)
+        expect = [_is_free(rows[rr, 0] * cols[c, 1], rows[rr, 0] * cols[c, 0], rows[rr, 1], df[base + c], origin, cam, seen_depth)
+                  for c in pick[:-1]]
+        np.testing.assert_array_equal(flags[pick[:-1]], np.where(expect, 3, 0))
+        untouched = np.ones(w, bool)
+        untouched[pick[:-1]] = False
+        assert (flags[untouched] == 7).all()
+        n_free += sum(expect)
+        n_tested += len(expect) if rr in (38, 41, 44, 45, 48, 52) else 0
+    assert n_free > 50 and n_tested - n_free > 50, (n_free, n_tested)  # not vacuous: both decisions, often
+
+
+def test_seen_arrays_keep_only_measured_finite_positive_depths():
+    """_seen_arrays: the frame's depth where known, finite and > 0 (float32, a float64 value beyond
+    float32's range becoming inf as numpy's cast makes it), then each pixel's 3×3 minimum; the
+    camera rows are T_cam_from_world's."""
+    import cv2
+
+    from rgbd_envmap.envmap import _seen_arrays
+
+    rng = np.random.default_rng(5)
+    depth = rng.uniform(0.3, 5.0, (48, 64))
+    depth[rng.random((48, 64)) < 0.05] = np.nan
+    depth[rng.random((48, 64)) < 0.03] = np.inf
+    depth[rng.random((48, 64)) < 0.03] = -1.0
+    depth[rng.random((48, 64)) < 0.03] = 0.0
+    depth[rng.random((48, 64)) < 0.01] = 1e300
+    known = rng.random((48, 64)) > 0.1
+    pose = RigidTransform.from_rt(_pose().rotation @ np.array([[0.8, -0.6, 0], [0.6, 0.8, 0], [0, 0, 1]]), [0.3, -0.2, 1.1])
+    with np.errstate(over="ignore"):
+        as_f32 = depth.astype(np.float32)
+    for d in (depth, as_f32):
+        with np.errstate(invalid="ignore", over="ignore"):
+            ref = np.where(known & np.isfinite(d) & (d > 0), d, 0).astype(np.float32)
+        ref = cv2.erode(ref, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        cam, seen_depth = _seen_arrays(SeenDepth(d, known, _intr(), pose), UpdateConfig())
+        assert seen_depth.dtype == np.float32
+        np.testing.assert_array_equal(seen_depth, ref)
+        np.testing.assert_array_equal(cam[:12], pose.inverse().matrix[:3].reshape(-1))
+    huge = SeenDepth(np.full((48, 64), 1e300), np.ones((48, 64), bool), _intr(), pose)
+    assert (_seen_arrays(huge, UpdateConfig())[1][1:-1, 1:-1] == np.inf).all()

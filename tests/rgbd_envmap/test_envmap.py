@@ -453,6 +453,54 @@ def test_update_equal_float32_distances_keep_what_a_sequential_z_test_keeps(spla
             np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
 
 
+@pytest.mark.parametrize("h, w", [(3, 5), (20, 33), (24, 66), (30, 97), (16, 35)])
+def test_update_kernel_equals_the_reference_on_odd_widths_across_the_seam_and_poles(h, w):
+    # The merge takes footprints of up to 4 and up to 8 columns with fixed per-row tests at wrapped
+    # columns and flags the tiles of a run's first and last column and of the map's last one; widths
+    # whose last 32-column tile is partial (33, 66, 97: 1–2 columns; 35: 3) or tiny maps break that
+    # first. Samples 0.05–0.6 m from the origin (a focal length scaled to the map: footprints of 1
+    # to many columns, rows clipped at the poles), around the seam (azimuth ±π) and the poles, from
+    # devices near and far; frames of 300 samples, then of one sample each (no other footprint
+    # flags the tiles a footprint misses).
+    rng = np.random.default_rng(h * 1000 + w)
+    origin = (0.05, 0.02, -0.1)
+    em_k, em_r = EnvironmentMap(h, w, origin), EnvironmentMap(h, w, origin)
+    cfg = UpdateConfig(max_splat_px=6)
+    focal = w / 4.0
+    frames = [(d, 300) for d in ([0.9, -0.3, 0.2], [0.3, 0.1, -0.4], [0.06, 0.03, -0.08])]
+    frames += [([0.9, -0.3, 0.2], 1)] * 150
+    for device, n in frames:
+        az = np.where(rng.random(n) < 0.6, np.pi + rng.normal(0, 0.15, n), rng.uniform(-np.pi, np.pi, n))
+        pol = np.where(rng.random(n) < 0.3, rng.choice([0.02, np.pi - 0.02], n), rng.uniform(0, np.pi, n))
+        dirs = np.stack([np.sin(pol) * np.cos(az), np.sin(pol) * np.sin(az), np.cos(pol)], -1)
+        pts = em_k.origin + dirs * rng.uniform(0.05, 0.6, n)[:, None]
+        pts[rng.random(n) < 0.03] = np.nan
+        cols = rng.random((n, 3)).astype(np.float32)
+        fill_only = rng.random(n) < 0.2
+        stats = update(em_k, pts, cols, np.array(device), focal, cfg, fill_only=fill_only)
+        touched, counts = _reference_update(em_r, pts, cols, np.array(device), focal, cfg, fill_only)
+        assert stats.touched == touched
+        assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal) == tuple(counts.values())
+        np.testing.assert_array_equal(em_k.valid, em_r.valid)
+        np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
+        np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
+    from rgbd_envmap.envmap import _EMPTY_Z
+
+    zband, tiles = em_k._update_scratch()[:2]
+    assert (zband == _EMPTY_Z).all() and not tiles.any()
+
+
+def test_update_without_usable_samples_changes_nothing():
+    for pts in (np.empty((0, 3)), np.full((5, 3), np.nan), np.zeros((3, 3))):  # none, NaN, at the origin
+        em = EnvironmentMap(H, W)
+        em.record_changes()
+        stats = update(em, pts, np.ones((len(pts), 3), np.float32), np.array([0.5, 0.0, 0.0]), FOCAL)
+        assert (stats.samples, stats.touched, stats.taken) == (len(pts), 0, 0)
+        assert not em.valid.any()
+        changes = em.take_changes()
+        assert len(changes.index) == 0 and changes.complete and changes.updates == 1
+
+
 def test_removal_rule_near_the_edge_of_its_cone():
     # The kernel evaluates the removal rule only in rows within asin(removal_r / |device|) (plus two
     # rows) of the device's direction. Samples on rays at angles around that bound, behind stored
