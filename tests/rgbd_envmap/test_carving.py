@@ -210,3 +210,16 @@ def test_seen_arrays_keep_only_measured_finite_positive_depths():
         np.testing.assert_array_equal(cam[:12], pose.inverse().matrix[:3].reshape(-1))
     huge = SeenDepth(np.full((48, 64), 1e300), np.ones((48, 64), bool), _intr(), pose)
     assert (_seen_arrays(huge, UpdateConfig())[1][1:-1, 1:-1] == np.inf).all()
+
+
+def test_rule_freed_on_its_own():
+    from rgbd_envmap.envmap import rule_freed
+
+    z = 2.0
+    limit = np.float32(z * 1.05 + 0.02)  # 2.12
+    assert rule_freed(z, float(np.nextafter(limit, np.float32(np.inf))), 0.05, 0.02)
+    assert not rule_freed(z, float(limit), 0.05, 0.02)  # strictly beyond the tolerance
+    assert not rule_freed(z, 0.0, 0.05, 0.02)  # an unmeasured neighbour
+    assert not rule_freed(z, float("nan"), 0.05, 0.02)
+    assert rule_freed(z, float("inf"), 0.05, 0.02)
+    assert rule_freed(0.5, 0.6, 0.0, 0.0) and not rule_freed(0.5, 0.6, 0.2, 0.0)
