@@ -5,8 +5,9 @@ does (§7.2, §8):
 
 - A **depth packet** (5 Hz) runs the whole chain once its colour frame is there (the colour frame
   with the nearest timestamp within ``max_colour_lag_ms``; the Tango delivers both together):
-  NV21 → linear RGB, point cloud → RGB-D frame, reliability marking, hole filling, paired samples,
-  colour-correction matrix (with its gate), EM update, SH projection, and the object's shading
+  NV21 → linear RGB, point cloud → RGB-D frame, depth denoising (ours; ``ingest.denoise_half_window``),
+  reliability marking, hole filling, paired samples, colour-correction matrix (with its gate), EM
+  update (the paper's rules plus free-space carving, ours), SH projection, and the object's shading
   (PRT transfer × SH coefficients) and shadow-plane alphas.
 - Every **colour frame** (30 Hz) is composited: the object, shaded in the reference colour space with
   the latest SH coefficients, is mapped into the frame's colour space by the inverse of the latest

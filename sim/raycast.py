@@ -45,6 +45,7 @@ class SceneRaycaster:
         self.scene = scene
         self._cache: dict[frozenset[int], tuple[o3d.t.geometry.RaycastingScene, np.ndarray]] = {}
         self._flag_bits = np.array([o.flag_bits for o in scene.objects] + [0], dtype=np.uint8)
+        self._texture_arrays: tuple[np.ndarray, ...] | None = None
 
     def _bvh(self, t_s: float):
         visible = frozenset(i for i, o in enumerate(self.scene.objects) if o.visible_at(t_s))
@@ -105,7 +106,7 @@ class SceneRaycaster:
         """Per object (and the miss row): texture kind (−1 none; :data:`_TEXTURE_KINDS`), cells (ns,
         nt), colours (padded to the most any texture has), and the quad frame (corner, u, v) as
         float64 rows, with u·u and v·v."""
-        if getattr(self, "_texture_arrays", None) is None:
+        if self._texture_arrays is None:
             objs = self.scene.objects
             k = max([len(o.texture.colours) for o in objs if o.texture is not None], default=1)
             kind = np.full(len(objs) + 1, -1, np.int64)
