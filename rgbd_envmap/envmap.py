@@ -467,6 +467,19 @@ def _key_index(q):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
+def _z_min4(z, p1, p2, p3, p4, key):  # pragma: no cover - compiled
+    """z[p] = min(z[p], key) at four entries, all loaded before any is stored (chained tests would
+    forward each store to the next load); equal entries load equal keys and store equal minima."""
+    q1, q2, q3, q4 = z[p1], z[p2], z[p3], z[p4]
+    w1, w2 = _mn(q1, key), _mn(q2, key)
+    w3, w4 = _mn(q3, key), _mn(q4, key)
+    z[p1] = w1
+    z[p2] = w2
+    z[p3] = w3
+    z[p4] = w4
+
+
+@numba.njit(cache=True, inline="always")
 def _z_run(z, lo, hi, key):  # pragma: no cover - compiled
     """``min`` of the keys z[lo:hi] and ``key``, in place; a select per entry, so the run vectorises."""
     for k in range(lo, hi):
@@ -643,14 +656,7 @@ def _update_kernel(
                 cb = a0 + n_cols - 1
                 cb = 0 if cb == width else cb
                 pa, pb = lo_r * width, hi_r * width
-                p1, p2, p3, p4 = _u(pa + a0), _u(pa + cb), _u(pb + a0), _u(pb + cb)
-                q1, q2, q3, q4 = zband[p1], zband[p2], zband[p3], zband[p4]
-                w1, w2 = _mn(q1, key), _mn(q2, key)
-                w3, w4 = _mn(q3, key), _mn(q4, key)
-                zband[p1] = w1
-                zband[p2] = w2
-                zband[p3] = w3
-                zband[p4] = w4
+                _z_min4(zband, _u(pa + a0), _u(pa + cb), _u(pb + a0), _u(pb + cb), key)
                 ta, tb = lo_r * n_tiles, hi_r * n_tiles
                 tiles[_u(ta + (a0 >> _TILE_SHIFT))] = 1
                 tiles[_u(ta + (cb >> _TILE_SHIFT))] = 1
@@ -669,14 +675,7 @@ def _update_kernel(
                 y0, y1, y2 = a0 >> _TILE_SHIFT, _mn(a0 + n_cols - 1, width - 1) >> _TILE_SHIFT, x3 >> _TILE_SHIFT
                 for rr in range(lo_r, hi_r + 1):
                     base, tbase = rr * width, rr * n_tiles
-                    p1, p2, p3, p4 = _u(base + a0), _u(base + x1), _u(base + x2), _u(base + x3)
-                    q1, q2, q3, q4 = zband[p1], zband[p2], zband[p3], zband[p4]
-                    w1, w2 = _mn(q1, key), _mn(q2, key)
-                    w3, w4 = _mn(q3, key), _mn(q4, key)
-                    zband[p1] = w1
-                    zband[p2] = w2
-                    zband[p3] = w3
-                    zband[p4] = w4
+                    _z_min4(zband, _u(base + a0), _u(base + x1), _u(base + x2), _u(base + x3), key)
                     tiles[_u(tbase + y0)] = 1
                     tiles[_u(tbase + y1)] = 1
                     tiles[_u(tbase + y2)] = 1
