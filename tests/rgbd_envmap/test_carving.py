@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rgbd_envmap.envmap import EnvironmentMap, SeenDepth, UpdateConfig, update
-from rgbd_envmap.errors import InvalidInputError
+from rgbd_envmap.errors import InvalidInputError, RangeError
 from rgbd_envmap.geometry import equirect_directions, project_points
 from rgbd_envmap.types import Distortion, Intrinsics, RigidTransform
 
@@ -137,8 +137,10 @@ def test_bad_evidence_is_refused():
     em = _stale_map()
     with pytest.raises(InvalidInputError):
         _update(em, np.full((47, 64), 3.0), np.ones((47, 64), bool))
-    with pytest.raises(Exception, match="carve_tol_rel"):
+    with pytest.raises(RangeError, match="carve_tol_rel"):
         _update(em, np.full((48, 64), 3.0), config=UpdateConfig(carve_tol_rel=-1.0))
+    with pytest.raises(RangeError, match="carve_tol_abs_m"):
+        _update(em, np.full((48, 64), 3.0), config=UpdateConfig(carve_tol_abs_m=float("nan")))
     np.testing.assert_array_equal(em.depth_m[STALE], 1.0)  # nothing was written
 
 
