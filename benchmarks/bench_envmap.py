@@ -571,16 +571,24 @@ def session(sim_factory, seconds: float, rows: dict) -> EnvironmentMap:
     return cap.em
 
 
-def capture_inputs(root: Path) -> tuple[np.ndarray, CaptureConfig, list] | None:
-    """Every ``EnvironmentCapture.process`` call of the recorded session at ``root``, replayed through
-    the pipeline (rendering off): (origin, capture config, [(raw, reliable, filled)]); None when there
-    is no session (``bash main.sh`` writes ``runs/default/session``)."""
+def _open_session(root: Path):
+    """(log, pipeline config with rendering off, default origin) of the recorded session at ``root``;
+    None when there is none (``bash main.sh`` writes ``runs/default/session``)."""
     if not (root / "calibration.json").is_file():
         return None
     log = SessionLog.open(root)
     cfg = PipelineConfig()
-    cfg = dataclasses.replace(cfg, render=dataclasses.replace(cfg.render, enabled=False))
-    origin = default_origin(log)
+    return log, dataclasses.replace(cfg, render=dataclasses.replace(cfg.render, enabled=False)), default_origin(log)
+
+
+def capture_inputs(root: Path) -> tuple[np.ndarray, CaptureConfig, list] | None:
+    """Every ``EnvironmentCapture.process`` call of the recorded session at ``root``, replayed through
+    the pipeline (rendering off): (origin, capture config, [(raw, reliable, filled)]); None when there
+    is no session (``bash main.sh`` writes ``runs/default/session``)."""
+    opened = _open_session(root)
+    if opened is None:
+        return None
+    log, cfg, origin = opened
     pipe = Pipeline(cfg, log.calibration, origin)
     calls = []
     real = EnvironmentCapture.process
@@ -693,12 +701,10 @@ def recorded_update_calls(root: Path) -> tuple[np.ndarray, int, int, list] | Non
     """The arguments of every ``update`` call of the recorded session at ``root`` (pipeline replay,
     rendering off): (origin, map height, width, [(points, colours, device, focal, config,
     fill_only, seen)]); None when there is no session."""
-    if not (root / "calibration.json").is_file():
+    opened = _open_session(root)
+    if opened is None:
         return None
-    log = SessionLog.open(root)
-    cfg = PipelineConfig()
-    cfg = dataclasses.replace(cfg, render=dataclasses.replace(cfg.render, enabled=False))
-    origin = default_origin(log)
+    log, cfg, origin = opened
     calls = []
     real = capture_module.update
 
