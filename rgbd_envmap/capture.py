@@ -32,14 +32,16 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from rgbd_envmap.checks import check_method
-from rgbd_envmap.colour import CCMResult, apply_ccm, estimate_ccm
+from rgbd_envmap.checks import check_method, check_positive_int
+from rgbd_envmap.colour import CCM_METHODS, DEFAULT_MAX_CONDITION, DEFAULT_RIDGE, SUMS_CCM_METHODS, CCMResult, _ccm_from_sums, apply_ccm, estimate_ccm
 from rgbd_envmap.depth.reliability import discontinuity_test
+from rgbd_envmap.errors import RangeError
 from rgbd_envmap.envmap import (
     EnvironmentMap,
     SeenDepth,
     UpdateConfig,
     UpdateStats,
+    _frame_pair_sums,
     _frame_pairs,
     _frame_samples,
     update,
@@ -90,6 +92,11 @@ class CaptureConfig:
 
     def __post_init__(self) -> None:
         check_method(self.filled_pixels, FILLED_PIXEL_MODES, "filled_pixels")
+        check_method(self.ccm_method, CCM_METHODS, "ccm_method")
+        # What estimate_ccm would reject per frame, rejected once here (the fused fit skips its checks).
+        if not float(self.max_mse) >= 0.0:
+            raise RangeError(f"CaptureConfig.max_mse: expected a number ≥ 0, got {self.max_mse}")
+        check_positive_int(self.min_pairs, "CaptureConfig.min_pairs")
 
 
 @dataclass(frozen=True)
@@ -143,19 +150,30 @@ class EnvironmentCapture:
         if not cfg.colour_correction:
             stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t)
             return CaptureStep(ts, False, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
-        with t.stage("Collect paired samples"):
-            # collect_pairs(em, frame_points(raw.depth_m, reliable, …), raw.rgb[reliable]) in one pass.
-            src, dst = _frame_pairs(self.em, raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam, raw.rgb,
-                                    cfg.pair_max_depth_diff_m)
-        with t.stage("Compute colour correction matrix"):
-            ccm = estimate_ccm(src, dst, method=cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs)
+        if cfg.ccm_method in SUMS_CCM_METHODS:
+            # The fit needs only the pairs' normal-equation sums: accumulated in the pair pass
+            # (bit-identical to collecting the pairs and summing them), so no pair array is stored.
+            with t.stage("Collect paired samples"):
+                *sums, n_found = _frame_pair_sums(self.em, raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam,
+                                                  raw.rgb, cfg.pair_max_depth_diff_m)
+            with t.stage("Compute colour correction matrix"):
+                ccm = _ccm_from_sums(*sums, cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs,
+                                     max_condition=DEFAULT_MAX_CONDITION, noise_std=None, ridge=DEFAULT_RIDGE)
+        else:
+            with t.stage("Collect paired samples"):
+                # collect_pairs(em, frame_points(raw.depth_m, reliable, …), raw.rgb[reliable]) in one pass.
+                src, dst = _frame_pairs(self.em, raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam, raw.rgb,
+                                        cfg.pair_max_depth_diff_m)
+                n_found = len(src)
+            with t.stage("Compute colour correction matrix"):
+                ccm = estimate_ccm(src, dst, method=cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs)
         if not ccm.accepted:
-            return CaptureStep(ts, False, ccm, False, ccm.reason, len(src), self.matrix.copy(), None)
+            return CaptureStep(ts, False, ccm, False, ccm.reason, n_found, self.matrix.copy(), None)
         self.matrix = np.array(ccm.matrix, dtype=np.float64)
         if cfg.freeze:
-            return CaptureStep(ts, False, ccm, False, "frozen", len(src), self.matrix.copy(), None)
+            return CaptureStep(ts, False, ccm, False, "frozen", n_found, self.matrix.copy(), None)
         stats = self._timed_project(raw, filled, self.matrix, t)
-        return CaptureStep(ts, False, ccm, True, "", len(src), self.matrix.copy(), stats)
+        return CaptureStep(ts, False, ccm, True, "", n_found, self.matrix.copy(), stats)
 
     def projected_mask(self, raw: RGBDFrame, filled: RGBDFrame) -> np.ndarray:
         """(H, W) bool: the pixels of ``filled`` that go into the map (see ``filled_pixels``)."""

@@ -51,6 +51,32 @@ def test_first_frame_is_the_reference_and_later_gains_are_undone(colourful_room)
     assert wall.sum() > 100
 
 
+
+@pytest.mark.parametrize("method", ["least_squares", "ridge", "Cheung 2004"])
+def test_the_fit_from_fused_sums_is_estimate_ccm_of_the_collected_pairs(colourful_room, method):
+    """least_squares and ridge fit from sums accumulated in the pair pass; the colour-science methods
+    from the pair arrays. Either way the step carries estimate_ccm's result for the frame's pairs."""
+    from rgbd_envmap.colour import estimate_ccm
+    from rgbd_envmap.envmap import _frame_pairs
+
+    cap = EnvironmentCapture(np.zeros(3), CaptureConfig(height=200, width=400, min_pairs=200, ccm_method=method))
+    _step(cap, _frame(colourful_room, look_at([0.0, 0.0, 0.0], [2.0, 0.1, 0.0])))
+    frame = _frame(colourful_room, look_at([0.0, 0.0, 0.0], [2.0, 0.2, 0.05]), (1.6, 1.0, 0.7), 1)
+    src, dst = _frame_pairs(cap.em, frame.depth_m, frame.known, INTR, frame.T_world_from_cam, frame.rgb, 0.01)
+    expected = estimate_ccm(src, dst, method=method, min_pairs=200)
+    step = _step(cap, frame)
+    assert step.n_pairs == len(src) > 1000 and step.ccm.accepted == expected.accepted
+    np.testing.assert_allclose(step.ccm.matrix, expected.matrix, rtol=1e-12, atol=1e-12)
+    assert step.ccm.mse == pytest.approx(expected.mse, rel=1e-9) and step.ccm.n_pairs == expected.n_pairs
+
+
+@pytest.mark.parametrize("bad", [{"ccm_method": "svd"}, {"max_mse": -1.0}, {"max_mse": float("nan")}, {"min_pairs": 0}])
+def test_bad_colour_settings_are_refused_when_the_config_is_made(bad):
+    from rgbd_envmap.errors import RangeError, UnknownMethodError
+
+    with pytest.raises((RangeError, UnknownMethodError)):
+        CaptureConfig(**bad)
+
 def test_no_overlap_is_rejected_and_leaves_map_and_matrix_alone(colourful_room):
     cap = EnvironmentCapture(np.zeros(3), SMALL)
     _step(cap, _frame(colourful_room, look_at([0.0, 0.0, 0.0], [2.0, 0.0, 0.0])))

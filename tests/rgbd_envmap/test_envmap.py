@@ -565,6 +565,37 @@ def test_fused_frame_samples_and_pairs_equal_the_separate_calls():
     np.testing.assert_array_equal(dst, ref_dst)
 
 
+
+def test_fused_pair_sums_equal_summing_the_collected_pairs_bit_for_bit():
+    """The pairs reduced to normal-equation sums inside the pair pass give exactly what collecting
+    them and summing gives (same values, same order), NaN and saturated colours included."""
+    from rgbd_envmap.colour import _ccm_sums
+    from rgbd_envmap.envmap import _frame_pair_sums, _frame_pairs, frame_points
+    from rgbd_envmap.geometry import look_at
+    from rgbd_envmap.types import Intrinsics
+
+    rng = np.random.default_rng(13)
+    intr = Intrinsics(64, 48, 50.0, 51.0, 31.5, 23.5)
+    T = look_at([0.1, -0.2, 0.05], [2.0, 0.5, 0.3])
+    depth = rng.uniform(0.5, 3.0, intr.shape).astype(np.float32)
+    depth[rng.random(intr.shape) < 0.05] = np.nan
+    mask = rng.random(intr.shape) < 0.8
+    rgb = rng.random((*intr.shape, 3)).astype(np.float32) * 1.1  # some channels ≥ 1: saturated
+    rgb[rng.random(intr.shape) < 0.02, 1] = np.nan
+    em = EnvironmentMap(H, W)
+    update(em, frame_points(depth, np.ones(intr.shape, bool), intr, T), rng.random((intr.shape[0] * intr.shape[1], 3)),
+           np.zeros(3), FOCAL)
+    src, dst = _frame_pairs(em, depth, mask, intr, T, rgb, 0.05)
+    ata, atb, bb, n, n_nonfinite, n_saturated = _ccm_sums(src, dst, 1.0)
+    got = _frame_pair_sums(em, depth, mask, intr, T, rgb, 0.05, saturation=1.0)
+    assert n > 100 and n_nonfinite > 0 and n_saturated > 0
+    np.testing.assert_array_equal(got[0], ata)
+    np.testing.assert_array_equal(got[1], atb)
+    assert got[2:] == (bb, n, n_nonfinite, n_saturated, len(src))
+    # An empty map: no pairs, zero sums.
+    empty = _frame_pair_sums(EnvironmentMap(H, W), depth, mask, intr, T, rgb)
+    assert empty[3:] == (0, 0, 0, 0) and not empty[0].any() and not empty[1].any()
+
 def _reference_translate(em, offset, max_splat_px=8, max_rel_jump=0.2):
     """The forward warp one source pixel at a time, in raster order, with a sequential z-test
     (closer wins, the first on equal distances). Landing positions come from the library's row
