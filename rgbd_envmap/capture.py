@@ -33,7 +33,15 @@ import cv2
 import numpy as np
 
 from rgbd_envmap.checks import check_method, check_positive_int
-from rgbd_envmap.colour import CCM_METHODS, DEFAULT_MAX_CONDITION, DEFAULT_RIDGE, SUMS_CCM_METHODS, CCMResult, _ccm_from_sums, apply_ccm, estimate_ccm
+from rgbd_envmap.colour import (
+    CCM_METHODS,
+    DEFAULT_MAX_CONDITION,
+    DEFAULT_RIDGE,
+    SUMS_CCM_METHODS,
+    CCMResult,
+    _ccm_from_sums,
+    estimate_ccm,
+)
 from rgbd_envmap.depth.reliability import discontinuity_test
 from rgbd_envmap.errors import RangeError
 from rgbd_envmap.envmap import (
@@ -197,9 +205,10 @@ class EnvironmentCapture:
             edge = (frame.known & ~plane).view(np.uint8)
             k = 2 * int(self.config.edge_margin_px) + 1
             near_edge = cv2.dilate(edge, np.ones((k, k), np.uint8))
-        # frame_points(frame.depth_m, mask, …), frame.rgb[mask] and near_edge[mask] in one pass.
-        pts, rgb, fill_only = _frame_samples(frame.depth_m, mask, frame.intrinsics, frame.T_world_from_cam, frame.rgb, near_edge)
-        colours = apply_ccm(rgb, matrix)
+        # frame_points(frame.depth_m, mask, …), frame.rgb[mask] and near_edge[mask] in one pass,
+        # and the colours corrected (apply_ccm(frame.rgb[mask], matrix), up to float32 rounding).
+        pts, colours, fill_only = _frame_samples(frame.depth_m, mask, frame.intrinsics, frame.T_world_from_cam, frame.rgb,
+                                                 near_edge, matrix)
         focal = 0.5 * (frame.intrinsics.fx + frame.intrinsics.fy)
         seen = SeenDepth(raw.depth_m, raw.known, raw.intrinsics, raw.T_world_from_cam)  # measured only
         return update(self.em, pts, colours, frame.T_world_from_cam.translation, focal, self.config.update,

@@ -556,6 +556,18 @@ def test_fused_frame_samples_and_pairs_equal_the_separate_calls():
     np.testing.assert_array_equal(col, rgb[mask])
     np.testing.assert_array_equal(fo, flag[mask])
     assert not _frame_samples(depth, mask, intr, T, rgb)[2].any()
+    # Colours corrected in the same pass: apply_ccm's values up to float32 rounding; points unchanged.
+    from rgbd_envmap.colour import apply_ccm
+
+    m = np.array([[1.3, 0.1, -0.05], [0.02, 0.9, 0.1], [-0.1, 0.05, 1.7]])
+    pts_m, col_m, _ = _frame_samples(depth, mask, intr, T, rgb, flag, m)
+    np.testing.assert_array_equal(pts_m, pts)
+    assert col_m.dtype == np.float32
+    np.testing.assert_allclose(col_m, apply_ccm(rgb[mask], m), rtol=2e-6, atol=1e-7)
+    from rgbd_envmap.errors import NonFiniteError
+
+    with pytest.raises(NonFiniteError):
+        _frame_samples(depth, mask, intr, T, rgb, flag, np.full((3, 3), np.nan))
     em = EnvironmentMap(H, W)
     update(em, frame_points(depth, np.ones(intr.shape, bool), intr, T), rgb.reshape(-1, 3), np.zeros(3), FOCAL)
     src, dst = _frame_pairs(em, depth, mask, intr, T, rgb, 0.05)
