@@ -74,8 +74,8 @@ class TangoIngestConfig:
     #: edge-aware plane-fit denoising of the measured depth before anything else uses it
     #: (:func:`rgbd_envmap.depth.denoise.denoise_frame`, a departure from the paper): the half-width
     #: of its window, or None for the paper's raw depth. 1 (3×3): with carving, 24.73 → 27.59 dB
-    #: map WS-PSNR on the default session for 1.0 ms a frame; 2 (5×5) 27.68 dB for 2.3 ms
-    #: (docs/em_error_study.md).
+    #: map WS-PSNR on the default session for 0.15 ms a frame (its own kernel; 1.0 ms before,
+    #: benchmarks/bench_denoise.py); 2 (5×5) 27.68 dB for 2.3 ms (docs/em_error_study.md).
     denoise_half_window: int | None = 1
 
     def __post_init__(self) -> None:

@@ -2,13 +2,15 @@
 the normalised rays, so planes come back exactly) and an independent per-pixel least-squares
 reference (numpy lstsq over the same inlier set)."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
-from rgbd_envmap.depth.denoise import denoise_depth
-from rgbd_envmap.errors import RangeError, ShapeError
+from rgbd_envmap.depth.denoise import _denoise, denoise_depth, denoise_frame
+from rgbd_envmap.errors import InvalidInputError, RangeError, ShapeError
 from rgbd_envmap.geometry import pixel_rays
-from rgbd_envmap.types import Distortion, Intrinsics
+from rgbd_envmap.types import Distortion, Intrinsics, RGBDFrame, RigidTransform
 
 INTR = Intrinsics(48, 36, 40.0, 41.0, 23.5, 17.5, Distortion.radial(-0.08, 0.02, 0.0))
 
@@ -97,3 +99,75 @@ def test_hard_cases():
         denoise_depth(z[:-1], none[:-1], INTR)
     with pytest.raises(ShapeError):
         denoise_depth(z, none[:-1], INTR)
+
+
+def _hard_depth(shape, seed):
+    """Two noisy planes with a step edge, 25 % holes, and NaN / ±inf / 0 / negative depths at
+    "known" pixels: every branch of the inlier test and of the solve."""
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    z = 1.0 + 0.3 * rng.random((h, w))
+    z[:, w // 2:] += 1.0
+    z *= 1.0 + 0.01 * rng.standard_normal((h, w))
+    known = rng.random((h, w)) > 0.25
+    bad = rng.random((h, w))
+    z[bad < 0.02] = np.nan
+    z[(bad >= 0.02) & (bad < 0.03)] = np.inf
+    z[(bad >= 0.03) & (bad < 0.04)] = -np.inf
+    z[(bad >= 0.04) & (bad < 0.05)] = 0.0
+    z[(bad >= 0.05) & (bad < 0.06)] = -1.0
+    return z.astype(np.float32), known
+
+
+@pytest.mark.parametrize("shape", [(36, 48), (120, 160), (1, 1), (1, 7), (7, 1), (2, 2), (3, 40), (17, 33)])
+@pytest.mark.parametrize(("tol", "min_in"), [(0.04, 6), (0.5, 3), (0.02, 9)])
+def test_3x3_kernel_equals_the_general_kernel_bit_for_bit(shape, tol, min_in):
+    """The 3×3 specialisation (float32 depth, half window 1) against the general kernel (float64
+    depth takes it), bit for bit, on holes, NaN, ±inf, zero and negative depths, image borders and
+    images narrower than the window. Both outputs, and denoise_frame's zeroed copy."""
+    h, w = shape
+    intr = Intrinsics(w, h, 40.0, 41.0, (w - 1) / 2, (h - 1) / 2, Distortion.radial(-0.08, 0.02, 0.0))
+    for seed in range(3):
+        z, known = _hard_depth(shape, seed)
+        fast = denoise_depth(z, known, intr, half_window=1, tol_rel=tol, min_inliers=min_in)
+        general = denoise_depth(z.astype(np.float64), known, intr, half_window=1, tol_rel=tol, min_inliers=min_in)
+        assert fast.dtype == np.float32 and fast.shape == shape
+        np.testing.assert_array_equal(fast.view(np.uint32), general.view(np.uint32))
+        zeroed = _denoise(z, known, intr, 1, tol, float(min_in), True)
+        general[~known] = 0.0
+        np.testing.assert_array_equal(zeroed.view(np.uint32), general.view(np.uint32))
+
+
+def test_3x3_kernel_takes_non_contiguous_views():
+    z, known = _hard_depth((72, 96), 4)
+    view, kview = z[::2, ::2], known[::2, ::2]
+    got = denoise_depth(view, kview, INTR, half_window=1)
+    np.testing.assert_array_equal(got, denoise_depth(view.copy(), kview.copy(), INTR, half_window=1))
+
+
+@pytest.mark.parametrize("half", [1, 2])
+def test_denoise_frame_equals_the_frame_the_constructor_builds(half):
+    """denoise_frame builds its frame without RGBDFrame's copies; the same frame as the plain
+    construction (values, dtypes, read-only arrays), and the input frame untouched."""
+    rng = np.random.default_rng(5)
+    z, known = _hard_depth((INTR.height, INTR.width), 5)
+    rgb = rng.random((INTR.height, INTR.width, 3)).astype(np.float32)
+    frame = RGBDFrame(rgb, np.where(known, z, 0.0), known, RigidTransform.identity("world", "cam"), INTR, 7)
+    before = frame.depth_m.copy()
+    got = denoise_frame(frame, half_window=half)
+    depth = denoise_depth(frame.depth_m, frame.known, INTR, half_window=half)
+    depth[~frame.known] = 0.0
+    want = RGBDFrame(frame.rgb, depth, frame.known, frame.T_world_from_cam, INTR, frame.timestamp_ns)
+    assert type(got) is RGBDFrame
+    for name in ("rgb", "depth_m", "known"):  # bit for bit (NaN depths at known pixels included)
+        a, b = getattr(got, name), getattr(want, name)
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes()
+    assert (got.T_world_from_cam, got.intrinsics, got.timestamp_ns) == (want.T_world_from_cam, INTR, 7)
+    assert got.depth_m.dtype == np.float32 and not got.depth_m.flags.writeable
+    assert not got.rgb.flags.writeable and not got.known.flags.writeable
+    np.testing.assert_array_equal(frame.depth_m, before)
+    # a frame-like object is refused by name
+    duck = SimpleNamespace(rgb=rgb, depth_m=frame.depth_m.copy(), known=known.copy(),
+                           T_world_from_cam=frame.T_world_from_cam, intrinsics=INTR, timestamp_ns=7)
+    with pytest.raises(InvalidInputError, match="RGBDFrame"):
+        denoise_frame(duck, half_window=half)

@@ -507,3 +507,22 @@ def test_rgbd_frame_converts_to_float32_read_only_copies():
         assert not arr.flags.writeable
     assert f == _frame(depth_m=np.full((172, 224), 2.0))
     assert f != _frame(depth_m=np.full((172, 224), 2.5))
+
+
+def test_rgbd_frame_with_depth_shares_the_rest_and_copies_writable_depth():
+    f = _frame()
+    before = f.depth_m.copy()
+    depth = np.full((172, 224), 3.0)  # float64, writable: converted and copied
+    g = f.with_depth(depth)
+    depth[0, 0] = 9.0
+    assert g.depth_m.dtype == np.float32 and g.depth_m[0, 0] == 3.0 and not g.depth_m.flags.writeable
+    assert g.rgb is f.rgb and g.known is f.known and g.T_world_from_cam is f.T_world_from_cam
+    assert g == _frame(depth_m=np.full((172, 224), 3.0))
+    np.testing.assert_array_equal(f.depth_m, before)
+    frozen = np.full((172, 224), 4.0, np.float32)
+    frozen.setflags(write=False)
+    assert f.with_depth(frozen).depth_m is frozen  # read-only float32: shared
+    with pytest.raises(ShapeError, match="depth_m"):
+        f.with_depth(np.zeros((172, 223)))
+    with pytest.raises(DTypeError, match="depth_m"):
+        f.with_depth(np.zeros((172, 224), np.int32))
