@@ -19,7 +19,8 @@ and the §6.2 translation), the current kernels side by side with the previous o
 4. Translation by 10 cm of the 4.2 s map (23 % covered), of the session's final map (89 %) and of
    the ray-cast true map (everything covered). ``--translation-baseline PATH`` adds another
    version of ``rgbd_envmap/translation.py`` (a copy of the file) timed alternately in the same
-   run, with the count of pixels it gives differently; ``--only-translation`` times just the
+   run, with the count of pixels it gives differently; a row with ``out=`` (the output map of
+   the previous call overwritten) is timed beside the default; ``--only-translation`` times just the
    translations of the recorded session's final map and the true map (``--translation-rounds``
    repeats each, default ``max(5, repeats // 5)``).
 5. ``--update-baseline PATH`` (alone): every ``update`` call of the recorded session (its inputs
@@ -76,6 +77,7 @@ from rgbd_envmap.envmap import (  # noqa: E402
 from rgbd_envmap.logs import SessionLog  # noqa: E402
 from rgbd_envmap.pipeline import Pipeline, PipelineConfig  # noqa: E402
 from rgbd_envmap.timing import StageTimer  # noqa: E402
+from rgbd_envmap.translation import translate_map  # noqa: E402
 from sim.colour_camera import ColourCameraConfig  # noqa: E402
 from sim.device import TangoDeviceConfig  # noqa: E402
 from sim.groundtruth import render_envmap  # noqa: E402
@@ -792,6 +794,11 @@ def translations(maps: dict[str, EnvironmentMap], r: int, rows: dict, baseline=N
     off = np.array([0.1, 0.0, 0.0])
     for name, em in maps.items():
         fns = {f"translate 2000x1000 by 10 cm, {name} (depth)": lambda em=em: translate(em, off)}
+        # A caller translating every frame can pass last frame's result as out= (no fresh 34 MB).
+        reused = EnvironmentMap(em.height, em.width)
+        diff = _maps_differ(translate(em, off), translate_map(em, off, out=reused))
+        print(f"translate {name}: {diff} of {em.height * em.width} pixels differ with out=")
+        fns[f"  out= (the output map reused), {name}"] = lambda em=em, reused=reused: translate_map(em, off, out=reused)
         if baseline is not None:
             diff = _maps_differ(translate(em, off), baseline.translate_map(em, off))
             print(f"translate {name}: {diff} of {em.height * em.width} pixels differ from the baseline module")

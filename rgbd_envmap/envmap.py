@@ -1321,11 +1321,12 @@ def _prefetch(typingctx, arr, i):  # pragma: no cover - compiled
 
 
 def translate(em: EnvironmentMap, offset: np.ndarray, method: str = "depth", *, radius_m: float = 2.0,
-              max_splat_px: int = 8, max_rel_jump: float = 0.2) -> EnvironmentMap:
+              max_splat_px: int = 8, max_rel_jump: float = 0.2, out: EnvironmentMap | None = None) -> EnvironmentMap:
     """A new map at ``em.origin + offset``; ``em`` is left intact (use the result in place of ``em``
     for a permanent move, or keep both for a temporary view). Paper §6.2; the work is in
     :mod:`rgbd_envmap.translation` (see :func:`~rgbd_envmap.translation.translate_map` for the
-    methods and parameters)."""
+    methods and parameters; ``out``: a map of the same size to overwrite and return instead)."""
     from rgbd_envmap.translation import translate_map  # it imports this module
 
-    return translate_map(em, offset, method, radius_m=radius_m, max_splat_px=max_splat_px, max_rel_jump=max_rel_jump)
+    return translate_map(em, offset, method, radius_m=radius_m, max_splat_px=max_splat_px, max_rel_jump=max_rel_jump,
+                         out=out)

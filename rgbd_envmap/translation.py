@@ -16,6 +16,57 @@ prefetch ahead (:func:`_prefetch`): where the move shears or magnifies (the tabl
 origin), neighbouring output pixels come from source rows far apart, and those loads missed the
 cache. :func:`rgbd_envmap.envmap.translate` is the public entry point.
 
+Fourth round. ``python benchmarks/bench_envmap.py --only-translation --translation-baseline COPY
+--translation-rounds 41`` (COPY: this file before the round; one thread, timed alternately in one
+run on this shared 2-core Zen 4 VM while another job kept one core busy; 0 pixels differ), median /
+p95 ms of a 10 cm move; two more runs gave the same ratios (0.82-0.89):
+
+==============================================  ================  ================
+map (2000×1000)                                 now               before the round
+==============================================  ================  ================
+the ray-cast true map, all covered              **25.0** / 34.6   30.4 / 39.2
+the recorded session's final map, 89 % covered  25.4 / 31.6       31.1 / 38.0
+==============================================  ================  ================
+
+Stages (cycle counters in the kernel, true map / session map, 10th percentile of 29 calls each,
+alternating, in a quieter spell: 27.7 / 29.5 → 23.4 / 23.7 ms in all): reprojection 2.2 / 2.0
+(unchanged), extents 1.3 / 1.2 → 1.4, splat targets 2.9 / 2.7 → 3.7 / 3.3, key updates
+13.9 / 16.9 → 9.5 / 11.1, output pass 7.2 / 6.5 → 6.2 / 5.5. Still above the 20 ms asked; what is
+left is mostly memory traffic (the output pass gathering from the pixel's own index instead of its
+winner takes as long: it streams 16 MB of keys, 24 MB of source colour and 34 MB of output;
+without the colour it takes 3.5 ms) and float64 footprint arithmetic.
+
+- The key updates: magnified footprints took about half (skipping them, a probe, cut the stage
+  14.8 → 7.1 ms on the true map), and one-pixel, 2×2 and magnified footprints mix in every
+  sheared region, each pixel choosing its path by branches. Now everything per pixel (target
+  index, key, kind) is computed in the vectorised :func:`_splat_targets`; one branch-free loop
+  updates every one-pixel footprint (the others update a spare key past the map's end) and lists
+  the 2×2 and magnified footprints, updated by two loops of their own: 3.8 + 1.8 + 3.5 ms on the
+  true map, 3.4 + 1.6 + 5.7 on the session's.
+  A magnified footprint's row run is one masked 8-lane min (:func:`_min_run8`) instead of a loop
+  whose trip count was mispredicted on each run (that loop 9.0 → 5.6 ms on the session's map:
+  4.3 M key updates in 0.57 M runs of 7.6 on average); the list loops prefetch their keys.
+- The output pass writes with non-temporal stores (:func:`_store_nt`): the output is not read
+  back here, and ordinary stores first read each line (0.5-0.7 ms).
+- Prefetch distances 128 (one-pixel updates, was 16: 2-3 ms) and 128 (output pass, was 64: 0.3).
+
+Tried and dropped in this round (same harness): a vectorised, branch-free output pass (AVX-512
+gathers, 11-13 ms instead of 6-7: without prefetches the colour loads wait on memory), the same in
+chunks with a prefetch loop ahead of each (8-10 ms), the output pass in reverse order, so that the
+keys the updates touched last are read first (no gain); the one-pixel target computed in the scalar
+loop instead of :func:`_splat_targets` (+2 ms); 2×2 footprints as two masked 2-lane updates, the
+row lists built in loops of their own, more prefetches for tall footprints, list prefetch distances
+4 or 16 (no gain); magnified footprints visited in a strided order, so that overlapping runs are not
+updated back to back (0.5-0.8 ms slower); keys never reset, each call's keys a generation below
+the last one's in the bits above the distance, so that earlier calls' keys compare larger and read
+as empty (no gain: the reset stores go to lines the pass has just read). ``out=`` (see
+:func:`translate_map`) times the same as a fresh output in the benchmark: glibc hands back the
+previous call's freed output, already faulted in; a truly fresh 34 MB output costs 14 ms of page
+faults, 68 ms with numpy's default MADV_HUGEPAGE on this machine (THP defrag "madvise": the kernel
+compacts memory synchronously), so huge pages for the output would be worse, not better. 32-bit
+keys cannot be exact (31 distance bits and a 21-bit index), and a banded z-buffer was rejected
+before (docs/envmap.md).
+
 References:
     Monroy, Hudon, Smolic (2018), §6.2.
     Gardner et al. (2017), Learning to Predict Indoor Illumination from a Single Image, §4 (warping).
@@ -44,6 +95,7 @@ from rgbd_envmap.envmap import (
     _f32_bits,
     _mn,
     _mx,
+    _prefetch,
     _span,
     _trig_columns,
 )
@@ -84,30 +136,66 @@ def _atan2_f32(y, x):  # pragma: no cover - compiled
 
 
 @intrinsic
-def _prefetch(typingctx, arr, i):  # pragma: no cover - compiled
-    """Hint that a[i] of a 1-D array will be read soon (LLVM's prefetch: never faults, so i may be
-    out of range)."""
-    sig = types.void(arr, i)
+def _min_run8(typingctx, arr, q, m, kk):  # pragma: no cover - compiled
+    """arr[q + j] = min(arr[q + j], kk) for 0 ≤ j < min(m, 8) of a 1-D int64 array: one masked
+    load, min and store (AVX-512 on this machine; LLVM splits or scalarises it elsewhere). Masked-off
+    lanes are neither read nor written, so q + 7 may lie past the array's end."""
+    sig = types.void(arr, q, m, kk)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        i32, i64 = ir.IntType(32), ir.IntType(64)
+        vty, mty = ir.VectorType(i64, 8), ir.VectorType(ir.IntType(1), 8)
+
+        def splat(x):
+            v = builder.insert_element(ir.Constant(vty, ir.Undefined), x, ir.Constant(i32, 0))
+            return builder.shuffle_vector(v, ir.Constant(vty, ir.Undefined), ir.Constant(ir.VectorType(i32, 8), [0] * 8))
+
+        ptr = builder.gep(ary.data, [context.cast(builder, args[1], signature.args[1], types.intp)])
+        vptr = builder.bitcast(ptr, vty.as_pointer())
+        lanes = ir.Constant(vty, [ir.Constant(i64, j) for j in range(8)])
+        mask = builder.icmp_signed("<", lanes, splat(context.cast(builder, args[2], signature.args[2], types.int64)))
+        k = splat(context.cast(builder, args[3], signature.args[3], types.int64))
+        load = cgutils.get_or_insert_function(builder.module, ir.FunctionType(vty, [vty.as_pointer(), i32, mty, vty]),
+                                              "llvm.masked.load.v8i64.p0v8i64")
+        store = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [vty, vty.as_pointer(), i32, mty]),
+                                               "llvm.masked.store.v8i64.p0v8i64")
+        old = builder.call(load, [vptr, ir.Constant(i32, 8), mask, k])
+        builder.call(store, [builder.select(builder.icmp_signed("<", k, old), k, old), vptr, ir.Constant(i32, 8), mask])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def _store_nt(typingctx, arr, i, value):  # pragma: no cover - compiled
+    """a[i] = value for a 1-D array, as a non-temporal (streaming) store: written to memory without
+    first reading the line into the cache (the output map, 34 MB, is not read back here)."""
+    sig = types.void(arr, i, value)
 
     def codegen(context, builder, signature, args):
         ary = context.make_array(signature.args[0])(context, builder, args[0])
         ptr = builder.gep(ary.data, [context.cast(builder, args[1], signature.args[1], types.intp)])
-        ptr = builder.bitcast(ptr, ir.IntType(8).as_pointer())
-        i32 = ir.IntType(32)
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32]),
-                                            "llvm.prefetch.p0")
-        builder.call(fn, [ptr, ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        val = context.cast(builder, args[2], signature.args[2], signature.args[0].dtype)
+        val = context.get_value_as_data(builder, signature.args[0].dtype, val)
+        st = builder.store(val, ptr)
+        st.set_metadata("nontemporal", builder.module.add_metadata([ir.Constant(ir.IntType(32), 1)]))
         return context.get_dummy_value()
 
     return sig, codegen
 
 
 #: The output pass prefetches the source colours of the pixel this many pixels ahead: the winners of
-#: neighbouring target pixels come from source rows far apart where the move magnifies or shears.
-_GATHER_AHEAD = 64
+#: neighbouring target pixels come from source rows far apart where the move magnifies or shears
+#: (128: 0.3 ms less than 64; 32 was 0.8 ms slower, 256 no better).
+_GATHER_AHEAD = 128
 
-#: The z-buffer updates prefetch the first target key of the source pixel this many columns ahead.
-_SCATTER_AHEAD = 16
+#: The one-pixel key updates prefetch the target key of the source pixel this many columns ahead
+#: (16 before the fourth round; 64: 1.7-2.5 ms less, 128: about 0.5 ms less again, 256 no better).
+_SCATTER_AHEAD = 128
+
+#: The 2×2 and magnified footprints prefetch the keys of the footprint this many list entries ahead.
+_LIST_AHEAD = 8
 
 #: The key of a target pixel no source pixel has landed on (see :func:`_translate_kernel`).
 _NO_KEY = np.iinfo(np.int64).max
@@ -212,12 +300,17 @@ def _extents_row(depth, valid, r, up, down, pv, pu, sr, su, sd, max_rel_jump, hv
         hu[c] = _mx(half * _mx(_mx(e1, e2), _mx(e3, e4)), half)
 
 
+#: Keys past the map's end in the key buffer: the one-pixel loop updates one of them (by column) for
+#: every pixel that is not a one-pixel footprint, a store nobody reads instead of a branch.
+_N_SPARE = 8
+
 #: :func:`_splat_targets` codes for a pixel that lands nowhere (invalid) or on a large footprint.
 _SKIP, _LARGE = -1.0, -2.0
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _splat_targets(valid, r, pv, pu, pd, sr, hv, hu, height, width, max_splat, min_col_limit, ta, tb, tc, td):  # pragma: no cover - compiled
+def _splat_targets(valid, r, pv, pu, pd, sr, hv, hu, height, width, max_splat, min_col_limit, ta, tb, tc, td, t1, keys, is2,
+                   isl):  # pragma: no cover - compiled
     """For each pixel of row r, the flat target indices of its footprint when it covers at most 2×2
     pixels (ta..td, repeats allowed: the one pixel (v, u) falls in when both extents are 0.5), or
     ta = :data:`_SKIP` (invalid pixel or distance) / :data:`_LARGE` (a larger footprint, left to
@@ -225,8 +318,15 @@ def _splat_targets(valid, r, pv, pu, pd, sr, hv, hu, height, width, max_splat, m
     AVX2 has no float64 → int64 conversion and the int version ran 2× slower); the spans are those of
     :func:`_span`, computed from float32 values exactly as per pixel. The column limit of the landing
     row (a table lookup, which kept the loop scalar) is replaced by its minimum over rows: a
-    footprint it would clip goes to the caller as large, and for the others the two limits agree."""
+    footprint it would clip goes to the caller as large, and for the others the two limits agree.
+
+    For the caller's scalar loops, also per pixel: t1, the int32 target of a one-pixel footprint or
+    else a spare key's index (n + c % :data:`_N_SPARE`); keys, the pixel's z-buffer key (distance
+    bits, source index); is2 / isl, a valid footprint of 2 to 4 pixels / a magnified one. Computing
+    them here costs 0.3-0.8 ms a map; computing them in the scalar loop cost 2 ms."""
     fw, fh = np.float64(width), np.float64(height)
+    fn = fw * fh
+    base = r * width
     for c in range(width):
         nd = pd[sr, c]
         v, u = np.float64(pv[sr, c]), np.float64(pu[sr, c])
@@ -248,31 +348,41 @@ def _splat_targets(valid, r, pv, pu, pd, sr, hv, hu, height, width, max_splat, m
         ca = col if single else c0w
         cb = col if single else c1w
         ok = valid[r, c] & (nd > 0.0) & (nd < np.inf)
-        ta[c] = (ra * fw + ca) if (ok & ~large) else (_LARGE if ok else _SKIP)
+        t_a, t_d = ra * fw + ca, rb * fw + cb
+        ta[c] = t_a if (ok & ~large) else (_LARGE if ok else _SKIP)
         tb[c] = ra * fw + cb
         tc[c] = rb * fw + ca
-        td[c] = rb * fw + cb
+        td[c] = t_d
+        t1[c] = np.int32(t_a if (ok & ~large & (t_a == t_d)) else fn + np.float64(c & (_N_SPARE - 1)))
+        keys[c] = (np.int64(_f32_bits(nd)) << 32) | (base + c)
+        is2[c] = ok & ~large & (t_a != t_d)
+        isl[c] = ok & large
 
 
 @numba.njit(cache=True)
 def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, ox, oy, oz, max_rel_jump, max_splat,
-                      col_limit, out_planes, out_depth, out_valid, key, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td):  # pragma: no cover - compiled
+                      col_limit, out_planes, out_depth, out_valid, key, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td, t1, l2, ll,
+                      keys, is2, isl):  # pragma: no cover - compiled
     """Forward warp of every valid pixel (see :func:`translate`), streaming over source rows.
 
     Row t + 1 is reprojected into a 3-row ring before row t is splatted, so the (v, u) of a
     pixel's 4-neighbours are at hand without full-map planes. The z-buffer is one int64 key per
     target pixel, float32 distance bits above the source pixel's index, so ``min`` keeps the
     closest sample and, on equal distances, the first in raster order: what a sequential
-    "closer wins" gives, but branch-free and independent of the visiting order. A final pass
-    writes every output pixel once from its key and resets the keys. Key updates prefetch the
-    first target of the pixel :data:`_SCATTER_AHEAD` columns on, the final pass the source
-    colours of the pixel :data:`_GATHER_AHEAD` on (prefetches never fault and change no result)."""
+    "closer wins" gives, but branch-free and independent of the visiting order (so one-pixel,
+    2×2 and magnified footprints are updated by separate loops). A final pass writes every output
+    pixel once from its key and resets the keys. ``key``: (H·W + :data:`_N_SPARE`,) int64, the
+    first H·W :data:`_NO_KEY` between calls. Key updates prefetch the target of the pixel
+    :data:`_SCATTER_AHEAD` columns (or :data:`_LIST_AHEAD` list entries) on, the final pass the
+    source colours of the pixel :data:`_GATHER_AHEAD` on (prefetches never fault and change no
+    result)."""
     height, width = depth.shape
-    key_flat = key.reshape(height * width)
+    n = height * width
+    key_flat = key  # n keys, then the spare ones
     min_col_limit = col_limit.min()
     kv = np.float32(height / math.pi)
     ku = np.float32(width / (2.0 * math.pi))
-    p_lo, p_hi = height * width, -1  # the flat target indices reached
+    p_lo, p_hi = n, -1  # the flat target indices reached
     # Rows with no valid pixel (most of a map still being captured) are not reprojected.
     busy = np.zeros(height, np.bool_)
     for t in range(height):
@@ -295,56 +405,75 @@ def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, 
         up = r - 1 if r > 0 else r
         down = r + 1 if r + 1 < height else r
         sr, su, sd = r % 3, up % 3, down % 3
-        base = r * width
         _extents_row(depth, valid, r, up, down, pv, pu, sr, su, sd, max_rel_jump, ext_v, ext_u)
-        _splat_targets(valid, r, pv, pu, pd, sr, ext_v, ext_u, height, width, max_splat, min_col_limit, ta, tb, tc, td)
+        _splat_targets(valid, r, pv, pu, pd, sr, ext_v, ext_u, height, width, max_splat, min_col_limit, ta, tb, tc, td,
+                       t1, keys, is2, isl)
+        for c in range(width):  # vectorised
+            p = t1[c]
+            p_lo = _mn(p_lo, p)  # a spare key's index is ≥ n
+            p_hi = _mx(p_hi, p if p < n else -1)
+        # One-pixel footprints (83 % of a full map's pixels), branch-free: every other pixel updates
+        # a spare key past the map's end instead; the rest are listed for the two loops below, so
+        # that no branch depends on the mix of footprint kinds (mispredicted wherever they mix).
+        # Everything else per pixel was computed in the vectorised loops above.
+        n2 = nl = 0
         for c in range(width):
-            t_pf = ta[_mn(c + _SCATTER_AHEAD, width - 1)]
-            _prefetch(key_flat, int(t_pf) if t_pf >= 0.0 else 0)
-            t_a = ta[c]
-            if t_a == _SKIP:
-                continue
-            kk = (np.int64(_f32_bits(pd[sr, c])) << 32) | (base + c)
-            if t_a != _LARGE:
-                if t_a == td[c]:  # one pixel (nearly every footprint): one update
-                    p = int(t_a)
-                    key_flat[p] = _mn(key_flat[p], kk)
-                    p_lo = _mn(p_lo, p)
-                    p_hi = _mx(p_hi, p)
-                    continue
-                # At most 2×2 pixels: four branch-free updates (repeats are harmless).
-                p, q = int(t_a), int(tb[c])
-                key_flat[p] = _mn(key_flat[p], kk)
-                key_flat[q] = _mn(key_flat[q], kk)
-                p_lo = _mn(p_lo, _mn(p, q))
-                p, q = int(tc[c]), int(td[c])
-                key_flat[p] = _mn(key_flat[p], kk)
-                key_flat[q] = _mn(key_flat[q], kk)
-                p_hi = _mx(p_hi, _mx(p, q))
-                continue
-            # A magnified footprint: row runs of at most two contiguous segments (the seam); a run
-            # longer than the row covers it once.
+            _prefetch(key_flat, t1[_mn(c + _SCATTER_AHEAD, width - 1)])
+            p = t1[c]
+            key_flat[p] = _mn(key_flat[p], keys[c])
+            l2[n2] = c
+            n2 += is2[c]
+            ll[nl] = c
+            nl += isl[c]
+        # At most 2×2 pixels: four updates (repeats are harmless).
+        for i in range(n2):
+            c = l2[i]
+            c_pf = l2[_mn(i + _LIST_AHEAD, n2 - 1)]
+            _prefetch(key_flat, int(ta[c_pf]))
+            _prefetch(key_flat, int(td[c_pf]))
+            kk = keys[c]
+            p, q = int(ta[c]), int(tb[c])
+            key_flat[p] = _mn(key_flat[p], kk)
+            key_flat[q] = _mn(key_flat[q], kk)
+            p_lo = _mn(p_lo, _mn(p, q))
+            p, q = int(tc[c]), int(td[c])
+            key_flat[p] = _mn(key_flat[p], kk)
+            key_flat[q] = _mn(key_flat[q], kk)
+            p_hi = _mx(p_hi, _mx(p, q))
+        # Magnified footprints: row runs of at most two contiguous segments (the seam); a run longer
+        # than the row covers it once. Runs are updated 8 keys at a time (:func:`_min_run8`).
+        for i in range(nl):
+            c = ll[i]
+            c_pf = ll[_mn(i + _LIST_AHEAD, nl - 1)]
+            _prefetch(key_flat, int(tb[c_pf]))  # near the footprint's first and last row
+            _prefetch(key_flat, int(tc[c_pf]))
+            kk = keys[c]
             v, u = pv[sr, c], pu[sr, c]
             r0, r1 = _span(v, ext_v[c], max_splat)
             c0, c1 = _span(u, ext_u[c], col_limit[_mn(int(v), height - 1)])
             n_c = _mn(c1 - c0 + 1, width)
-            a0 = c0 % width
-            a1 = _mn(a0 + n_c, width)
+            a0 = c0 + width if c0 < 0 else c0  # c0 % width: c0 is within [-width / 2 - 1, width]
+            a0 = a0 - width if a0 >= width else a0
+            if a0 < 0 or a0 >= width:
+                a0 = c0 % width
+            m = _mn(a0 + n_c, width) - a0
             b1 = a0 + n_c - width
-            p_lo = _mn(p_lo, _mx(r0, 0) * width)
-            p_hi = _mx(p_hi, _mn(r1, height - 1) * width + width - 1)
-            for rr in range(_mx(r0, 0), _mn(r1, height - 1) + 1):
-                for cc in range(rr * width + a0, rr * width + a1):
-                    key_flat[cc] = _mn(key_flat[cc], kk)
+            rr0, rr1 = _mx(r0, 0), _mn(r1, height - 1)
+            p_lo = _mn(p_lo, rr0 * width)
+            p_hi = _mx(p_hi, rr1 * width + width - 1)
+            for rr in range(rr0, rr1 + 1):
+                q = rr * width + a0
+                for j0 in range(0, m, 8):
+                    _min_run8(key_flat, q + j0, m - j0, kk)
                 for cc in range(rr * width, rr * width + b1):
                     key_flat[cc] = _mn(key_flat[cc], kk)
     # Gather: every output pixel written once, in order, the keys reset on the way (a key holds the
     # flat source index). Outside the span of target pixels reached the keys are not read.
-    n = height * width
     src_flat = planes.reshape(3, n)
-    dst_flat = out_planes.reshape(3, n)
+    dst0, dst1, dst2 = out_planes[0].reshape(n), out_planes[1].reshape(n), out_planes[2].reshape(n)
     depth_flat = out_depth.reshape(n)
     valid_flat = out_valid.reshape(n)
+    zero = np.float32(0.0)
     for p in range(n):
         if p + _GATHER_AHEAD <= p_hi:
             k_ahead = key_flat[p + _GATHER_AHEAD]
@@ -352,28 +481,21 @@ def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, 
             _prefetch(src_flat[0], s_ahead)
             _prefetch(src_flat[1], s_ahead)
             _prefetch(src_flat[2], s_ahead)
-        if p < p_lo or p > p_hi:
-            depth_flat[p] = 0.0
-            valid_flat[p] = False
-            dst_flat[0, p] = 0.0
-            dst_flat[1, p] = 0.0
-            dst_flat[2, p] = 0.0
-            continue
-        kk = key_flat[p]
+        kk = key_flat[p] if p_lo <= p <= p_hi else _NO_KEY
         if kk == _NO_KEY:
-            depth_flat[p] = 0.0
+            _store_nt(depth_flat, p, zero)
             valid_flat[p] = False
-            dst_flat[0, p] = 0.0
-            dst_flat[1, p] = 0.0
-            dst_flat[2, p] = 0.0
+            _store_nt(dst0, p, zero)
+            _store_nt(dst1, p, zero)
+            _store_nt(dst2, p, zero)
         else:
             key_flat[p] = _NO_KEY
             s = kk & 0xFFFFFFFF
-            depth_flat[p] = _bits_f32(np.int32(kk >> 32))
+            _store_nt(depth_flat, p, _bits_f32(np.int32(kk >> 32)))
             valid_flat[p] = True
-            dst_flat[0, p] = src_flat[0, s]
-            dst_flat[1, p] = src_flat[1, s]
-            dst_flat[2, p] = src_flat[2, s]
+            _store_nt(dst0, p, src_flat[0, s])
+            _store_nt(dst1, p, src_flat[1, s])
+            _store_nt(dst2, p, src_flat[2, s])
 
 
 _warp_buffers = threading.local()
@@ -382,21 +504,41 @@ _warp_buffers = threading.local()
 def _translate_buffers(height: int, width: int) -> tuple[np.ndarray, ...]:
     """Per-thread scratch of :func:`translate` for one map size, kept between calls (a map is
     typically viewed from a moving origin many times; fresh 16 MB buffers cost page faults): the
-    (H, W) int64 key buffer, all :data:`_NO_KEY` between calls, three (3, W) rings of reprojected rows, the
-    (W,) v and u extents of one row."""
+    (H·W + :data:`_N_SPARE`,) int64 key buffer (all :data:`_NO_KEY` between calls but the spare
+    keys), three (3, W) rings of reprojected rows, the (W,) v and u extents of one row, the per-row
+    outputs of :func:`_splat_targets` (ta..td float64; t1 int32; keys int64; is2, isl uint8) and
+    the two (W,) int32 column lists of :func:`_translate_kernel`."""
     cache = getattr(_warp_buffers, "by_shape", None)
     if cache is None:
         cache = _warp_buffers.by_shape = {}
     if (height, width) not in cache:
         cache.clear()  # one size at a time
-        cache[(height, width)] = (np.full((height, width), _NO_KEY, np.int64), *(np.zeros((3, width), np.float32) for _ in range(3)),
+        n = height * width
+        if n + _N_SPARE > np.iinfo(np.int32).max:  # t1 is int32
+            raise InvalidInputError(f"translate: at most 2**31 - {_N_SPARE + 1} pixels, got {height}×{width}")
+        cache[(height, width)] = (np.full(n + _N_SPARE, _NO_KEY, np.int64),
+                                  *(np.zeros((3, width), np.float32) for _ in range(3)),
                                   np.zeros(width, np.float32), np.zeros(width, np.float32),
-                                  *(np.zeros(width, np.float64) for _ in range(4)))
+                                  *(np.zeros(width, np.float64) for _ in range(4)),
+                                  *(np.zeros(width, np.int32) for _ in range(3)),  # t1, l2, ll
+                                  np.zeros(width, np.int64), np.zeros(width, np.uint8), np.zeros(width, np.uint8))
     return cache[(height, width)]
 
 
+def _check_out(em: EnvironmentMap, out: EnvironmentMap) -> None:
+    """``out`` must be another map of ``em``'s size whose arrays share no memory with ``em``'s (the
+    kernel reads ``em`` while it writes ``out``)."""
+    if not isinstance(out, EnvironmentMap):
+        raise InvalidInputError(f"out: expected an EnvironmentMap, got {type(out).__name__}")
+    if (out.height, out.width) != (em.height, em.width):
+        raise InvalidInputError(f"out: expected a {em.height}×{em.width} map, got {out.height}×{out.width}")
+    mine = (em.radiance_planes, em.depth_m, em.valid)
+    if out is em or any(np.may_share_memory(a, b) for a in (out.radiance_planes, out.depth_m, out.valid) for b in mine):
+        raise InvalidInputError("out: must not be the map being translated nor share its arrays")
+
+
 def translate_map(em: EnvironmentMap, offset: np.ndarray, method: str = "depth", *, radius_m: float = 2.0,
-              max_splat_px: int = 8, max_rel_jump: float = 0.2) -> EnvironmentMap:
+              max_splat_px: int = 8, max_rel_jump: float = 0.2, out: EnvironmentMap | None = None) -> EnvironmentMap:
     """A new map at ``em.origin + offset``; ``em`` is left intact (use the result in place of ``em``
     for a permanent move, or keep both for a temporary view).
 
@@ -408,28 +550,42 @@ def translate_map(em: EnvironmentMap, offset: np.ndarray, method: str = "depth",
     threshold let holes open there on every step (30 steps of 1 cm kept 55 % of the true map's
     solid angle at 0.05, 80 % at 0.2, with equal correlation).
 
+    ``out``: another map of the same size to overwrite and return instead of a new one (every
+    array is rewritten, its origin set, its change log if any marked incomplete), for a caller that
+    translates every frame and can reuse last frame's result. A fresh 34 MB output costs page
+    faults when the allocator cannot hand back a freed one (14 ms on this machine, 68 ms with
+    numpy's default MADV_HUGEPAGE, which makes the kernel compact memory for huge pages).
+
     The depth warp computes landing positions in float32 (within 1e-4 pixel) and keeps per-thread
-    scratch for the last map size between calls (an (H, W) int64 key buffer, 16 MB at 2000×1000).
+    scratch for the last map size between calls (an (H·W + 8,) int64 key buffer, 16 MB at
+    2000×1000).
     """
     check_method(method, TRANSLATE_METHODS)
     off = check_array(offset, "offset", shape=(3,), dtype=("float", "int"), finite=True).astype(np.float64)
     new_origin = em.origin + off
+    if out is not None:
+        _check_out(em, out)
+    if method == "gardner":
+        if not radius_m > 0:
+            raise InvalidInputError(f"radius_m: expected a positive radius, got {radius_m}")
+        if np.linalg.norm(off) >= radius_m:
+            raise InvalidInputError(f"gardner: the new origin must lie inside the sphere (|offset| {np.linalg.norm(off):.3f} ≥ radius {radius_m})")
+    if out is None:  # the depth kernel writes every pixel: its output is not zeroed first
+        make = EnvironmentMap._uninitialised if method == "depth" else EnvironmentMap
+        out = make(em.height, em.width, new_origin)
+    else:
+        out.origin = new_origin
+        out.mark_modified()  # its change log, if any, cannot list a whole new map
     if method == "depth":
         h, w = em.height, em.width
-        out = EnvironmentMap._uninitialised(h, w, new_origin)  # the kernel writes every pixel
         o = (em.origin - new_origin).astype(np.float32)
         col_limit = _col_limits(h, w, int(max_splat_px))
-        key, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td = _translate_buffers(h, w)
+        key, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td, t1, l2, ll, keys, is2, isl = _translate_buffers(h, w)
         # Contiguous sin / cos columns: strided reads from the (W, 2) tables kept the loop scalar.
         _translate_kernel(em.depth_m, em.valid, em.radiance_planes, *_trig_columns(h, w), o[0], o[1], o[2],
                           np.float32(max_rel_jump), int(max_splat_px), col_limit, out.radiance_planes, out.depth_m,
-                          out.valid, key, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td)
+                          out.valid, key, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td, t1, l2, ll, keys, is2, isl)
         return out
-    out = EnvironmentMap(em.height, em.width, new_origin)
-    if not radius_m > 0:
-        raise InvalidInputError(f"radius_m: expected a positive radius, got {radius_m}")
-    if np.linalg.norm(off) >= radius_m:
-        raise InvalidInputError(f"gardner: the new origin must lie inside the sphere (|offset| {np.linalg.norm(off):.3f} ≥ radius {radius_m})")
     # Backward warp: the ray from the new origin along each output direction meets the sphere
     # |x − o| = R at x = o' + t d with t = −(off·d) + sqrt((off·d)² − |off|² + R²).
     dirs = equirect_directions(em.height, em.width).astype(np.float64)

@@ -675,11 +675,12 @@ def test_translate_kernel_equals_the_per_pixel_reference(offset):
     np.testing.assert_array_equal(got.valid, ref.valid)
     np.testing.assert_array_equal(got.depth_m, ref.depth_m)
     np.testing.assert_array_equal(got.radiance_planes, ref.radiance_planes)
-    # The source map is intact and the key buffer clean for the next call.
+    # The source map is intact and the key buffer clean for the next call (the spare keys past
+    # the map's end take the updates of pixels that are not one-pixel footprints).
     from rgbd_envmap.translation import _NO_KEY, _translate_buffers
 
     np.testing.assert_array_equal(em.depth_m, depth)
-    assert (_translate_buffers(h, w)[0] == _NO_KEY).all()
+    assert (_translate_buffers(h, w)[0][: h * w] == _NO_KEY).all()
 
 
 def test_float32_atan2_matches_libm():
@@ -723,6 +724,85 @@ def test_translate_kernel_on_tiny_and_empty_maps():
             np.testing.assert_array_equal(got.radiance_planes, ref.radiance_planes)
     out = translate(EnvironmentMap(H, W), np.array([0.1, 0.0, 0.0]))
     assert not out.valid.any() and not out.depth_m.any() and not out.radiance_planes.any()
+
+
+def _random_map(rng, h, w, coverage):
+    depth = rng.uniform(0.5, 3.0, (h, w)).astype(np.float32)
+    depth[:, : w // 4] = 0.6  # a near block: magnified footprints and depth jumps
+    return EnvironmentMap.from_arrays(rng.random((h, w, 3)).astype(np.float32), depth, rng.random((h, w)) < coverage,
+                                      np.zeros(3))
+
+
+def _assert_same_map(got, ref):
+    np.testing.assert_array_equal(got.valid, ref.valid)
+    np.testing.assert_array_equal(got.depth_m.view(np.uint32), ref.depth_m.view(np.uint32))
+    np.testing.assert_array_equal(got.radiance_planes.view(np.uint32), ref.radiance_planes.view(np.uint32))
+
+
+def test_translate_keys_of_earlier_calls_never_show():
+    # The key buffer is kept between calls: a dense map, then a sparse one of the same size must
+    # give the sparse map's own result (and back).
+    rng = np.random.default_rng(7)
+    h, w = 20, 40
+    dense, sparse = _random_map(rng, h, w, 0.95), _random_map(rng, h, w, 0.3)
+    off = np.array([0.2, -0.1, 0.05])
+    ref_dense, ref_sparse = _reference_translate(dense, off), _reference_translate(sparse, off)
+    for _ in range(2):
+        _assert_same_map(translate(dense, off), ref_dense)
+        _assert_same_map(translate(sparse, off), ref_sparse)
+
+
+def test_translate_out_gives_the_same_map_in_place():
+    from rgbd_envmap.translation import translate_map
+
+    rng = np.random.default_rng(8)
+    em = _random_map(rng, 24, 48, 0.8)
+    em.origin = np.array([0.1, 0.2, 0.3])
+    out = EnvironmentMap(24, 48)
+    out.record_changes()
+    for method, off in (("depth", np.array([0.3, -0.2, 0.1])), ("depth", np.array([-0.05, 0.0, 0.4])), ("gardner", np.array([0.2, 0, 0]))):
+        ref = translate_map(em, off, method)
+        got = translate_map(em, off, method, out=out)
+        assert got is out
+        _assert_same_map(got, ref)
+        np.testing.assert_array_equal(got.origin, em.origin + off)
+        assert not out.take_changes().complete  # the whole map was rewritten outside update()
+
+
+def test_translate_out_errors():
+    from rgbd_envmap.translation import translate_map
+
+    em = EnvironmentMap(H, W)
+    off = np.array([0.1, 0.0, 0.0])
+    for bad in (EnvironmentMap(H, W + 2), EnvironmentMap(H + 1, W), em, np.zeros((3, H, W), np.float32)):
+        with pytest.raises(InvalidInputError, match="out"):
+            translate_map(em, off, out=bad)
+    shares = EnvironmentMap(H, W)
+    shares.depth_m = em.depth_m  # the kernel would read what it writes
+    with pytest.raises(InvalidInputError, match="out"):
+        translate_map(em, off, out=shares)
+    # Nothing is touched when the call is rejected.
+    out = EnvironmentMap(H, W)
+    with pytest.raises(InvalidInputError):
+        translate_map(em, np.array([3.0, 0, 0]), "gardner", radius_m=2.0, out=out)
+    np.testing.assert_array_equal(out.origin, np.zeros(3))
+
+
+def test_masked_run_update_touches_only_its_lanes():
+    import numba
+
+    from rgbd_envmap.translation import _min_run8
+
+    @numba.njit
+    def run(a, q, m, k):
+        _min_run8(a, q, m, k)
+
+    for q, m in ((0, 0), (3, 1), (2, 5), (4, 8), (1, 11), (14, 2)):  # (14, 2): lanes past the end stay off
+        a = np.arange(16, dtype=np.int64) * 10
+        expect = a.copy()
+        expect[q : q + min(m, 8)] = np.minimum(expect[q : q + min(m, 8)], 45)
+        run(a, q, m, 45)
+        np.testing.assert_array_equal(a, expect)
 
 
 def _random_frame(rng, n=400, spread=1.0):
