@@ -538,18 +538,25 @@ def test_removal_rule_near_the_edge_of_its_cone():
     assert fired > 0
 
 
-def test_fused_frame_samples_and_pairs_equal_the_separate_calls():
-    from rgbd_envmap.envmap import _frame_pairs, _frame_samples, frame_points
+def _random_rgbd(seed, width, height, focal):
+    """A random RGB-D frame: depth 0.5–3 m with 5 % NaN, 80 % of pixels masked in, float32 colours."""
     from rgbd_envmap.geometry import look_at
     from rgbd_envmap.types import Intrinsics
 
-    rng = np.random.default_rng(12)
-    intr = Intrinsics(40, 30, 35.0, 36.0, 19.5, 14.5)
+    rng = np.random.default_rng(seed)
+    intr = Intrinsics(width, height, focal, focal + 1.0, (width - 1) / 2, (height - 1) / 2)
     T = look_at([0.1, -0.2, 0.05], [2.0, 0.5, 0.3])
     depth = rng.uniform(0.5, 3.0, intr.shape).astype(np.float32)
     depth[rng.random(intr.shape) < 0.05] = np.nan
     mask = rng.random(intr.shape) < 0.8
     rgb = rng.random((*intr.shape, 3)).astype(np.float32)
+    return rng, intr, T, depth, mask, rgb
+
+
+def test_fused_frame_samples_and_pairs_equal_the_separate_calls():
+    from rgbd_envmap.envmap import _frame_pairs, _frame_samples, frame_points
+
+    rng, intr, T, depth, mask, rgb = _random_rgbd(12, 40, 30, 35.0)
     flag = rng.random(intr.shape) < 0.3
     pts, col, fo = _frame_samples(depth, mask, intr, T, rgb, flag)
     np.testing.assert_array_equal(pts, frame_points(depth, mask, intr, T))
@@ -583,16 +590,9 @@ def test_fused_pair_sums_equal_summing_the_collected_pairs_bit_for_bit():
     them and summing gives (same values, same order), NaN and saturated colours included."""
     from rgbd_envmap.colour import _ccm_sums
     from rgbd_envmap.envmap import _frame_pair_sums, _frame_pairs, frame_points
-    from rgbd_envmap.geometry import look_at
-    from rgbd_envmap.types import Intrinsics
 
-    rng = np.random.default_rng(13)
-    intr = Intrinsics(64, 48, 50.0, 51.0, 31.5, 23.5)
-    T = look_at([0.1, -0.2, 0.05], [2.0, 0.5, 0.3])
-    depth = rng.uniform(0.5, 3.0, intr.shape).astype(np.float32)
-    depth[rng.random(intr.shape) < 0.05] = np.nan
-    mask = rng.random(intr.shape) < 0.8
-    rgb = rng.random((*intr.shape, 3)).astype(np.float32) * 1.1  # some channels ≥ 1: saturated
+    rng, intr, T, depth, mask, rgb = _random_rgbd(13, 64, 48, 50.0)
+    rgb *= 1.1  # some channels ≥ 1: saturated
     rgb[rng.random(intr.shape) < 0.02, 1] = np.nan
     em = EnvironmentMap(H, W)
     update(em, frame_points(depth, np.ones(intr.shape, bool), intr, T), rng.random((intr.shape[0] * intr.shape[1], 3)),
