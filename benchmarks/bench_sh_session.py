@@ -14,7 +14,8 @@ p95 of both, the pixels written per frame and the largest relative difference.
 ``git show HEAD:rgbd_envmap/sh.py > /tmp/sh_old.py``), whose ``IncrementalProjection`` follows
 the same map beside the current one, both fed the same change log each frame, in alternating order
 (the machine is shared and noisy: side by side in one process is the only fair comparison), over
-``--passes`` replays of the session.
+``--passes`` replays of the session; also prints on how many frames the two gave bit-identical
+coefficients and their largest relative difference.
 """
 
 from __future__ import annotations
@@ -82,6 +83,9 @@ class _SideBySide:
             self.times[name].append((time.perf_counter() - t) * 1e3)
         ref = sh.project_planar(em.radiance_planes, em.valid, self.trackers["current"].bands)
         self.diffs.append({k: float(np.abs(c - ref).max() / np.abs(ref).max()) for k, c in out.items()})
+        base, cur = out["baseline"], out["current"]
+        self.diffs[-1]["identical"] = bool(np.array_equal(base, cur))
+        self.diffs[-1]["versus"] = float(np.abs(cur - base).max() / max(np.abs(base).max(), 1e-300))
         return out["current"]
 
 
@@ -108,6 +112,9 @@ def compare(log: SessionLog, baseline: Path, passes: int) -> None:
         print(f"  {name:8s} ({baseline if name == 'baseline' else 'rgbd_envmap/sh.py'}): median {np.median(t):.2f} ms, "
               f"p95 {np.percentile(t, 95):.2f} ms over {len(t)} frames; "
               f"largest relative difference from project_planar {d:.2e}")
+    same = sum(x["identical"] for x in diffs)
+    print(f"  current vs baseline: identical coefficients on {same} of {len(diffs)} frames, "
+          f"largest relative difference {max(x['versus'] for x in diffs):.2e}")
 
 
 def main() -> None:

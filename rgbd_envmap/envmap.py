@@ -63,11 +63,8 @@ from functools import lru_cache
 import cv2
 import numba
 import numpy as np
-from llvmlite import ir
-from numba import types
-from numba.core import cgutils
-from numba.extending import intrinsic
 
+from rgbd_envmap._intrinsics import _bits_f32, _f32_bits, _prefetch
 from rgbd_envmap.checks import check_array, check_positive_int
 from rgbd_envmap.errors import InvalidInputError, RangeError
 from rgbd_envmap.geometry import brown_distort, pixel_rays
@@ -1330,41 +1327,6 @@ def _block_coords(points, start, m, ox, oy, oz, kv, ku, bx, by, bz, bv, bu, br):
         br[j] = math.sqrt(h * h + dz * dz)
         bv[j] = _atan2_branchless(h, dz) * kv
         bu[j] = (_atan2_branchless(dy, dx) + math.pi) * ku
-
-
-@intrinsic
-def _f32_bits(typingctx, x):  # pragma: no cover - compiled
-    """The IEEE-754 bits of a float32 as int32 (positive floats order like their bits)."""
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.int32))
-    return types.int32(types.float32), codegen
-
-
-@intrinsic
-def _bits_f32(typingctx, x):  # pragma: no cover - compiled
-    """Inverse of :func:`_f32_bits`."""
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float32))
-    return types.float32(types.int32), codegen
-
-
-@intrinsic
-def _prefetch(typingctx, arr, i):  # pragma: no cover - compiled
-    """Hint that a[i] of a 1-D array will be read soon (LLVM's prefetch: never faults, so i may be
-    out of range)."""
-    sig = types.void(arr, i)
-
-    def codegen(context, builder, signature, args):
-        ary = context.make_array(signature.args[0])(context, builder, args[0])
-        ptr = builder.gep(ary.data, [context.cast(builder, args[1], signature.args[1], types.intp)])
-        ptr = builder.bitcast(ptr, ir.IntType(8).as_pointer())
-        i32 = ir.IntType(32)
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32]),
-                                            "llvm.prefetch.p0")
-        builder.call(fn, [ptr, ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
-        return context.get_dummy_value()
-
-    return sig, codegen
 
 
 def translate(em: EnvironmentMap, offset: np.ndarray, method: str = "depth", *, radius_m: float = 2.0,

@@ -82,6 +82,7 @@ from functools import lru_cache
 import numba
 import numpy as np
 
+from rgbd_envmap._intrinsics import _prefetch
 from rgbd_envmap.checks import check_array, check_finite, check_positive_int
 from rgbd_envmap.errors import (
     DTypeError,
@@ -752,7 +753,24 @@ def project_planar(planes: np.ndarray, valid: np.ndarray | None = None, bands: i
 # adds vectorised over a row's changes (_reduce_row). Adding changes one by one to their row's sums
 # in memory through a (W, 2n − 1) cos / sin table cost ~40 ns each (C's switched fills did that
 # before). Walks are rare in A (~150 written pixels a frame have a missing neighbour).
+# Per phase (cycle counters in a probe copy, 94 incremental frames × 3 replays, cache evicted
+# between frames as the pipeline's other stages do; median / mean ms per frame, previous version →
+# this one, two runs each): A's staging and neighbour checks 0.63–0.69 / 1.03–1.09 → 0.53 / 0.80
+# (prefetching, below); the rows' _reduce_row 0.17 / 0.23–0.25 → 0.10 / 0.14 (first block from
+# e^{i0φ} = 1); C's walks, with their flushes, 0.10–0.11 / 0.59–0.64 → 0.06–0.07 / 0.37 (skip
+# pixels inside new patches, prefetch); B's list and A's walks 0.05 / 0.14 → 0.04–0.05 / 0.12; all
+# flushes: sort and stage 0.01–0.02 / 0.15–0.17 → 0.01 / 0.12, reduction 0.02 / 0.17–0.19 → 0.01 /
+# 0.13. The whole update 1.94–2.03 → 1.44–1.49 ms median. Tried, not kept: staging and neighbour
+# checks in two loops (LLVM then vectorises the staging with gathers: A 0.54–0.56 → 0.69–0.96 ms
+# median), vectorising the records' reduction (changes the rounding, see _reduce_row), prefetching
+# only every 2nd or 4th change, or the state rows above and of the pixel too (within noise).
 
+# How far ahead (log entries in A, new data pixels in C) _apply_changes prefetches the map and the
+# fill state. Between two SH updates the pipeline's other stages evict the 2 MB fill state from the
+# cache, and the hardware prefetcher does not follow the sparse, row-skipping reads (measured on
+# the default session, cache evicted between frames as in the pipeline: 1.66 → 1.40 ms median per
+# update, 1.87 ms before any change of this version; 16 ahead ~10 % slower, 48 and 64 within noise).
+_AHEAD = np.uint64(32)
 _KEY_DATA = 0  # fill key of a pixel with data (a source's key is 4 · distance + direction ≥ 4)
 
 
@@ -781,13 +799,13 @@ def _source(p, u, kk, W):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
-def _reduce_row(st, i0, i1, a):  # pragma: no cover - compiled
-    """a (3, P) += the longitude sums of the changes st[:, i0:i1], all in one row. ``st`` (7, N):
-    cos φ_u, sin φ_u, cos, sin of the block's first order m (1, 0 as staged; advanced here by 5
-    orders per block), Δ per channel. The other orders of a block come from the first by complex
-    multiplication by e^{iφ}, so the loop needs no table lookups (gathers) and vectorises over the
-    changes with the 30 sums in registers. (Branching on the block instead of always storing the
-    next block's start stops LLVM from vectorising it.)"""
+def _reduce_block(st, i0, i1, a, j, first, store):  # pragma: no cover - compiled
+    """One block of 5 orders (sums a[:, j:j + 10]) of :func:`_reduce_row`. ``first``, ``store``:
+    constants after inlining, so each combination is its own branch-free loop. The first block
+    starts from e^{i0φ} = 1 instead of loading it (the previous version staged 1, 0 for every change
+    and multiplied by them): its order-1 term is (cos φ, sin φ) itself, exactly what 1 · c − 0 · s
+    gave, and the sin(0φ) sum, which no coefficient uses, is skipped. ``store`` writes the next
+    block's first order to st[2], st[3]."""
     c1 = st[0]
     s1 = st[1]
     bc = st[2]
@@ -795,76 +813,112 @@ def _reduce_row(st, i0, i1, a):  # pragma: no cover - compiled
     x0 = st[4]
     x1 = st[5]
     x2 = st[6]
-    for j in range(0, a.shape[1], 2 * _BLOCK):
-        a00 = a01 = a02 = a03 = a04 = a05 = a06 = a07 = a08 = a09 = 0.0
-        a10 = a11 = a12 = a13 = a14 = a15 = a16 = a17 = a18 = a19 = 0.0
-        a20 = a21 = a22 = a23 = a24 = a25 = a26 = a27 = a28 = a29 = 0.0
-        for i in range(i0, i1):
-            c = c1[i]
-            s = s1[i]
+    a00 = a01 = a02 = a03 = a04 = a05 = a06 = a07 = a08 = a09 = 0.0
+    a10 = a11 = a12 = a13 = a14 = a15 = a16 = a17 = a18 = a19 = 0.0
+    a20 = a21 = a22 = a23 = a24 = a25 = a26 = a27 = a28 = a29 = 0.0
+    for i in range(i0, i1):
+        c = c1[i]
+        s = s1[i]
+        if first:
+            q1c = c
+            q1s = s
+        else:
             q0c = bc[i]
             q0s = bs[i]
             q1c = q0c * c - q0s * s
             q1s = q0c * s + q0s * c
-            q2c = q1c * c - q1s * s
-            q2s = q1c * s + q1s * c
-            q3c = q2c * c - q2s * s
-            q3s = q2c * s + q2s * c
-            q4c = q3c * c - q3s * s
-            q4s = q3c * s + q3s * c
+        q2c = q1c * c - q1s * s
+        q2s = q1c * s + q1s * c
+        q3c = q2c * c - q2s * s
+        q3s = q2c * s + q2s * c
+        q4c = q3c * c - q3s * s
+        q4s = q3c * s + q3s * c
+        if store:
             bc[i] = q4c * c - q4s * s
             bs[i] = q4c * s + q4s * c
-            x = x0[i]
+        x = x0[i]
+        if first:
+            a00 += x
+        else:
             a00 += q0c * x
-            a01 += q1c * x
-            a02 += q2c * x
-            a03 += q3c * x
-            a04 += q4c * x
             a05 += q0s * x
-            a06 += q1s * x
-            a07 += q2s * x
-            a08 += q3s * x
-            a09 += q4s * x
-            x = x1[i]
+        a01 += q1c * x
+        a02 += q2c * x
+        a03 += q3c * x
+        a04 += q4c * x
+        a06 += q1s * x
+        a07 += q2s * x
+        a08 += q3s * x
+        a09 += q4s * x
+        x = x1[i]
+        if first:
+            a10 += x
+        else:
             a10 += q0c * x
-            a11 += q1c * x
-            a12 += q2c * x
-            a13 += q3c * x
-            a14 += q4c * x
             a15 += q0s * x
-            a16 += q1s * x
-            a17 += q2s * x
-            a18 += q3s * x
-            a19 += q4s * x
-            x = x2[i]
+        a11 += q1c * x
+        a12 += q2c * x
+        a13 += q3c * x
+        a14 += q4c * x
+        a16 += q1s * x
+        a17 += q2s * x
+        a18 += q3s * x
+        a19 += q4s * x
+        x = x2[i]
+        if first:
+            a20 += x
+        else:
             a20 += q0c * x
-            a21 += q1c * x
-            a22 += q2c * x
-            a23 += q3c * x
-            a24 += q4c * x
             a25 += q0s * x
-            a26 += q1s * x
-            a27 += q2s * x
-            a28 += q3s * x
-            a29 += q4s * x
-        for ch in range(3):
-            r = a[ch]
-            if ch == 0:
-                t = (a00, a01, a02, a03, a04, a05, a06, a07, a08, a09)
-            elif ch == 1:
-                t = (a10, a11, a12, a13, a14, a15, a16, a17, a18, a19)
-            else:
-                t = (a20, a21, a22, a23, a24, a25, a26, a27, a28, a29)
-            for i in range(2 * _BLOCK):
-                r[j + i] += t[i]
+        a21 += q1c * x
+        a22 += q2c * x
+        a23 += q3c * x
+        a24 += q4c * x
+        a26 += q1s * x
+        a27 += q2s * x
+        a28 += q3s * x
+        a29 += q4s * x
+    for ch in range(3):
+        r = a[ch]
+        if ch == 0:
+            t = (a00, a01, a02, a03, a04, a05, a06, a07, a08, a09)
+        elif ch == 1:
+            t = (a10, a11, a12, a13, a14, a15, a16, a17, a18, a19)
+        else:
+            t = (a20, a21, a22, a23, a24, a25, a26, a27, a28, a29)
+        for i in range(2 * _BLOCK):
+            r[j + i] += t[i]
+
+
+@numba.njit(cache=True, fastmath=_FASTMATH, inline="always")
+def _reduce_row(st, i0, i1, a, records):  # pragma: no cover - compiled
+    """a (3, P) += the longitude sums of the changes st[:, i0:i1], all in one row. ``st`` (7, N):
+    cos φ_u, sin φ_u, cos, sin of the block's first order m (blocks after the first only; written
+    here), Δ per channel. The other orders of a block come from the first by complex
+    multiplication by e^{iφ}, so the loop needs no table lookups (gathers) and the 30 sums stay in
+    registers.
+
+    ``records`` (a constant): the records' loop in :func:`_flush` always stores the next block's
+    start, as the previous version did; that store (st may alias its inputs) keeps LLVM from
+    vectorising it, and so keeps its rounding: vectorised, its sums reassociate across SIMD lanes
+    (measured: coefficients differ by up to 2.6e-16 relative on the default session, for ~0.1 ms
+    on frames with ~20k records). A row's own changes (``records`` False) vectorise either way, with
+    the same lanes as before; with 5 bands their loop stores nothing (measured: the row reductions
+    0.17 → 0.10 ms at the median frame, results bit for bit unchanged)."""
+    nb = a.shape[1] // (2 * _BLOCK)
+    if nb == 1 and not records:
+        _reduce_block(st, i0, i1, a, 0, True, False)
+    else:
+        _reduce_block(st, i0, i1, a, 0, True, True)
+        for j in range(1, nb):
+            _reduce_block(st, i0, i1, a, 2 * _BLOCK * j, False, True)
 
 
 @numba.njit(cache=True, inline="always")
 def _stage(st, i, phi1, u, d0, d1, d2):  # pragma: no cover - compiled
+    """Stage change i for :func:`_reduce_row`: cos φ_u, sin φ_u and Δ (st[2], st[3] are its own)."""
     st[0, i] = phi1[u, 0]
     st[1, i] = phi1[u, 1]
-    st[2, i] = 1.0
-    st[3, i] = 0.0
     st[4, i] = d0
     st[5, i] = d1
     st[6, i] = d2
@@ -890,7 +944,7 @@ def _flush(rec_v, rec_u, rec_d, nr, phi1, st, start, acc, dirty):  # pragma: no 
         e = start[v]
         if e > b:
             dirty[v] = True
-            _reduce_row(st, b, e, acc[v])
+            _reduce_row(st, b, e, acc[v], True)
         b = e
     return 0
 
@@ -961,6 +1015,7 @@ def _apply_changes(flat, H, W, index, old, was_valid, state, none, phi1, radius,
     nr = 0
     # A (and B's colours). The log lists pixels in raster order. B only reads the state here: A's
     # walks must see it as it was.
+    last = np.uint64(n - 1)
     e1 = 0
     while e1 < n:
         e0 = e1
@@ -977,6 +1032,11 @@ def _apply_changes(flat, H, W, index, old, was_valid, state, none, phi1, radius,
         nt = 0
         for i in range(k):
             e = np.uint64(e0 + i)
+            pa = np.uint64(index[min(e + _AHEAD, last)])  # its colours and the state row below
+            _prefetch(f0, pa)
+            _prefetch(f1, pa)
+            _prefetch(f2, pa)
+            _prefetch(state, pa + uw)
             p = np.uint64(index[e])
             u = p - ur
             w = was_valid[e]
@@ -1047,15 +1107,31 @@ def _apply_changes(flat, H, W, index, old, was_valid, state, none, phi1, radius,
                         rec_d[2, nr] = d2
                         nr += 1
         dirty[v] = True
-        _reduce_row(st, 0, kw, acc[v])
+        _reduce_row(st, 0, kw, acc[v], False)
     # B. the new data pixels are data from now on
     for i in range(nf):
         state[fresh[i]] = _KEY_DATA
     # C. missing pixels along the four runs from each new data pixel may copy it now
+    uw = np.uint64(W)
+    lastf = np.uint64(max(nf - 1, 0))
     for i in range(nf):
+        pa = np.uint64(fresh[min(np.uint64(i) + _AHEAD, lastf)])  # the state rows above and below
+        _prefetch(state, pa - uw)
+        _prefetch(state, pa + uw)
         p = fresh[i]
         v = p // W
         u = p - v * W
+        # New data mostly comes in patches: inside one, all four neighbours have data (new pixels
+        # are data by now) and every walk would stop at its first step. One test for all four
+        # (unsigned, as in A; a pole tests p itself) skips the four unpredictable loop exits
+        # (measured: C 0.72 → 0.40 ms mean per frame of the default session, before prefetching).
+        pp = np.uint64(p)
+        lq = pp - _U1 if u > 0 else pp + uw - _U1
+        rq = pp + _U1 if u < W - 1 else pp + _U1 - uw
+        aq = pp - uw if v > 0 else pp
+        bq = pp + uw if v < H - 1 else pp
+        if (state[lq] | state[rq] | state[aq] | state[bq]) == _KEY_DATA:
+            continue
         l0 = np.float64(f0[p])
         l1 = np.float64(f1[p])
         l2 = np.float64(f2[p])

@@ -79,23 +79,17 @@ import threading
 
 import numba
 import numpy as np
-from llvmlite import ir
-from numba import types
-from numba.core import cgutils
-from numba.extending import intrinsic
 
+from rgbd_envmap._intrinsics import _bits_f32, _f32_bits, _min_run8, _prefetch, _store_nt
 from rgbd_envmap.checks import check_array, check_method
 from rgbd_envmap.envmap import (
     _ATAN_POLY,
     TRANSLATE_METHODS,
     EnvironmentMap,
     _atan2_branchless,
-    _bits_f32,
     _col_limits,
-    _f32_bits,
     _mn,
     _mx,
-    _prefetch,
     _span,
     _trig_columns,
 )
@@ -133,56 +127,6 @@ def _atan2_f32(y, x):  # pragma: no cover - compiled
     a = _F32_HALF_PI - a if ay > ax else a
     a = _F32_PI - a if x < np.float32(0.0) else a
     return -a if y < np.float32(0.0) else a
-
-
-@intrinsic
-def _min_run8(typingctx, arr, q, m, kk):  # pragma: no cover - compiled
-    """arr[q + j] = min(arr[q + j], kk) for 0 ≤ j < min(m, 8) of a 1-D int64 array: one masked
-    load, min and store (AVX-512 on this machine; LLVM splits or scalarises it elsewhere). Masked-off
-    lanes are neither read nor written, so q + 7 may lie past the array's end."""
-    sig = types.void(arr, q, m, kk)
-
-    def codegen(context, builder, signature, args):
-        ary = context.make_array(signature.args[0])(context, builder, args[0])
-        i32, i64 = ir.IntType(32), ir.IntType(64)
-        vty, mty = ir.VectorType(i64, 8), ir.VectorType(ir.IntType(1), 8)
-
-        def splat(x):
-            v = builder.insert_element(ir.Constant(vty, ir.Undefined), x, ir.Constant(i32, 0))
-            return builder.shuffle_vector(v, ir.Constant(vty, ir.Undefined), ir.Constant(ir.VectorType(i32, 8), [0] * 8))
-
-        ptr = builder.gep(ary.data, [context.cast(builder, args[1], signature.args[1], types.intp)])
-        vptr = builder.bitcast(ptr, vty.as_pointer())
-        lanes = ir.Constant(vty, [ir.Constant(i64, j) for j in range(8)])
-        mask = builder.icmp_signed("<", lanes, splat(context.cast(builder, args[2], signature.args[2], types.int64)))
-        k = splat(context.cast(builder, args[3], signature.args[3], types.int64))
-        load = cgutils.get_or_insert_function(builder.module, ir.FunctionType(vty, [vty.as_pointer(), i32, mty, vty]),
-                                              "llvm.masked.load.v8i64.p0v8i64")
-        store = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [vty, vty.as_pointer(), i32, mty]),
-                                               "llvm.masked.store.v8i64.p0v8i64")
-        old = builder.call(load, [vptr, ir.Constant(i32, 8), mask, k])
-        builder.call(store, [builder.select(builder.icmp_signed("<", k, old), k, old), vptr, ir.Constant(i32, 8), mask])
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-@intrinsic
-def _store_nt(typingctx, arr, i, value):  # pragma: no cover - compiled
-    """a[i] = value for a 1-D array, as a non-temporal (streaming) store: written to memory without
-    first reading the line into the cache (the output map, 34 MB, is not read back here)."""
-    sig = types.void(arr, i, value)
-
-    def codegen(context, builder, signature, args):
-        ary = context.make_array(signature.args[0])(context, builder, args[0])
-        ptr = builder.gep(ary.data, [context.cast(builder, args[1], signature.args[1], types.intp)])
-        val = context.cast(builder, args[2], signature.args[2], signature.args[0].dtype)
-        val = context.get_value_as_data(builder, signature.args[0].dtype, val)
-        st = builder.store(val, ptr)
-        st.set_metadata("nontemporal", builder.module.add_metadata([ir.Constant(ir.IntType(32), 1)]))
-        return context.get_dummy_value()
-
-    return sig, codegen
 
 
 #: The output pass prefetches the source colours of the pixel this many pixels ahead: the winners of

@@ -791,7 +791,7 @@ def test_translate_out_errors():
 def test_masked_run_update_touches_only_its_lanes():
     import numba
 
-    from rgbd_envmap.translation import _min_run8
+    from rgbd_envmap._intrinsics import _min_run8
 
     @numba.njit
     def run(a, q, m, k):

@@ -1,0 +1,109 @@
+"""LLVM operations the numba kernels need and numba does not offer, as numba intrinsics.
+
+- :func:`_f32_bits`, :func:`_bits_f32`: a float32's IEEE-754 bits as int32 and back (positive
+  floats order like their bits, so a distance and an index pack into one int64 key whose ``min``
+  is "closest, then first": the map update's and the translation's z-buffers).
+- :func:`_prefetch`: a software prefetch of one array element (never faults, so the index may lie
+  outside the array): scattered reads that the hardware prefetcher does not follow (the map's pixels
+  under a frame's samples, the translation's z-buffer keys, the SH tracker's fill state).
+- :func:`_store_nt`: a non-temporal (streaming) store, for output written once and not read back.
+- :func:`_min_run8`: ``min`` of up to 8 consecutive int64 entries and a key, as one masked vector
+  load / min / store.
+
+Each is tested through the kernels that use it (tests/rgbd_envmap/test_envmap.py, test_sh.py).
+"""
+
+from __future__ import annotations
+
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+__all__: list[str] = []  # private helpers of the compiled kernels
+
+
+@intrinsic
+def _f32_bits(typingctx, x):  # pragma: no cover - compiled
+    """The IEEE-754 bits of a float32 as int32 (positive floats order like their bits)."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.int32))
+    return types.int32(types.float32), codegen
+
+
+@intrinsic
+def _bits_f32(typingctx, x):  # pragma: no cover - compiled
+    """Inverse of :func:`_f32_bits`."""
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.float32))
+    return types.float32(types.int32), codegen
+
+
+@intrinsic
+def _prefetch(typingctx, arr, i):  # pragma: no cover - compiled
+    """Hint that arr[i] of a 1-D array will be read soon (LLVM's prefetch: read, keep in all cache
+    levels, data). A hint never faults, so i may lie outside the array (a pole row's neighbour, a
+    list entry past its end)."""
+    sig = types.void(arr, i)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1]], wraparound=False, boundscheck=False)
+        i8p, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def _store_nt(typingctx, arr, i, value):  # pragma: no cover - compiled
+    """a[i] = value for a 1-D array, as a non-temporal (streaming) store: written to memory without
+    first reading the line into the cache (the output map, 34 MB, is not read back here)."""
+    sig = types.void(arr, i, value)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = builder.gep(ary.data, [context.cast(builder, args[1], signature.args[1], types.intp)])
+        val = context.cast(builder, args[2], signature.args[2], signature.args[0].dtype)
+        val = context.get_value_as_data(builder, signature.args[0].dtype, val)
+        st = builder.store(val, ptr)
+        st.set_metadata("nontemporal", builder.module.add_metadata([ir.Constant(ir.IntType(32), 1)]))
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def _min_run8(typingctx, arr, q, m, kk):  # pragma: no cover - compiled
+    """arr[q + j] = min(arr[q + j], kk) for 0 ≤ j < min(m, 8) of a 1-D int64 array: one masked
+    load, min and store (AVX-512 on this machine; LLVM splits or scalarises it elsewhere). Masked-off
+    lanes are neither read nor written, so q + 7 may lie past the array's end."""
+    sig = types.void(arr, q, m, kk)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        i32, i64 = ir.IntType(32), ir.IntType(64)
+        vty, mty = ir.VectorType(i64, 8), ir.VectorType(ir.IntType(1), 8)
+
+        def splat(x):
+            v = builder.insert_element(ir.Constant(vty, ir.Undefined), x, ir.Constant(i32, 0))
+            return builder.shuffle_vector(v, ir.Constant(vty, ir.Undefined), ir.Constant(ir.VectorType(i32, 8), [0] * 8))
+
+        ptr = builder.gep(ary.data, [context.cast(builder, args[1], signature.args[1], types.intp)])
+        vptr = builder.bitcast(ptr, vty.as_pointer())
+        lanes = ir.Constant(vty, [ir.Constant(i64, j) for j in range(8)])
+        mask = builder.icmp_signed("<", lanes, splat(context.cast(builder, args[2], signature.args[2], types.int64)))
+        k = splat(context.cast(builder, args[3], signature.args[3], types.int64))
+        load = cgutils.get_or_insert_function(builder.module, ir.FunctionType(vty, [vty.as_pointer(), i32, mty, vty]),
+                                              "llvm.masked.load.v8i64.p0v8i64")
+        store = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [vty, vty.as_pointer(), i32, mty]),
+                                               "llvm.masked.store.v8i64.p0v8i64")
+        old = builder.call(load, [vptr, ir.Constant(i32, 8), mask, k])
+        builder.call(store, [builder.select(builder.icmp_signed("<", k, old), k, old), vptr, ir.Constant(i32, 8), mask])
+        return context.get_dummy_value()
+
+    return sig, codegen
