@@ -2,6 +2,7 @@
 
 import csv
 import json
+import os
 import shutil
 
 import numpy as np
@@ -167,3 +168,23 @@ def test_sweep_writes_time_and_error_side_by_side(run, tmp_path):
 def test_sweep_rejects_unknown_axes(run, tmp_path, capsys):
     assert main(["sweep", str(run / "session"), "--out", str(tmp_path / "s"), "--axes", "colour_of_the_sky", "--quiet"]) == 2
     assert "colour_of_the_sky" in capsys.readouterr().err
+
+
+def test_video_writer_encodes_every_frame_niced_and_pads_odd_sizes(tmp_path):
+    """The encoder gets every frame (read back: count, size, content), odd sizes padded to even."""
+    imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
+    from apps.run import VideoWriter
+
+    path = tmp_path / "v.mp4"
+    video = VideoWriter(path, 30.0)
+    for i in range(12):
+        video.write(np.full((17, 31, 3), 20 * i, np.uint8))
+        if i == 0 and video._proc is not None:  # the encoder runs niced (the pipeline keeps its core)
+            assert os.getpriority(os.PRIO_PROCESS, video._proc.pid) == min(19, os.getpriority(os.PRIO_PROCESS, 0) + 19)
+    video.close()
+    frames = imageio_ffmpeg.read_frames(str(path))
+    meta = next(frames)
+    assert meta["size"] == (32, 18)
+    means = [np.frombuffer(f, np.uint8).reshape(18, 32, 3)[:17, :31].mean() for f in frames]
+    assert len(means) == 12
+    np.testing.assert_allclose(means, 20 * np.arange(12), atol=3)
