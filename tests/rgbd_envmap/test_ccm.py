@@ -569,3 +569,38 @@ def test_ridge_rejects_a_negative_strength() -> None:
     src, dst = _random_pairs(600, 1)
     with pytest.raises(RangeError):
         estimate_ccm(src, dst, "ridge", ridge=-1.0)
+
+
+def test_jacobi_eigh_and_the_compiled_fit_match_lapack():
+    """The 3×3 Jacobi eigensolver against numpy's eigh (diagonal, rank 1 and 2, condition up to
+    1e10, negative entries), and the compiled fit against numpy's solve / pinv on the same sums."""
+    from rgbd_envmap.colour import _fit_sums, _sym3_eigh
+
+    rng = np.random.default_rng(3)
+    cases = [np.diag([3.0, 1.0, 2.0]), np.zeros((3, 3)), np.outer([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])]
+    for cond in (1.0, 1e2, 1e6, 1e10):
+        q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+        cases.append(q @ np.diag([1.0, np.sqrt(cond), cond]) @ q.T)
+    a = rng.standard_normal((3, 2))
+    cases.append(a @ a.T)  # rank 2
+    for m in cases:
+        w, v = _sym3_eigh(m)
+        ref = np.linalg.eigvalsh(m)
+        scale = max(abs(ref).max(), 1e-300)
+        np.testing.assert_allclose(w, ref, rtol=1e-12, atol=1e-14 * scale)
+        np.testing.assert_allclose(v @ np.diag(w) @ v.T, m, atol=1e-13 * scale)
+        np.testing.assert_allclose(v.T @ v, np.eye(3), atol=1e-13)
+    src = rng.random((2000, 3))
+    dst = src @ np.array([[1.2, 0.1, 0.0], [0.05, 0.9, 0.1], [0.0, -0.1, 1.4]]).T + 0.01 * rng.standard_normal((2000, 3))
+    ata, atb, bb = src.T @ src, src.T @ dst, float((dst * dst).sum())
+    matrix, mse, cond, well_posed = _fit_sums(ata, atb, bb, 2000, -1.0)
+    np.testing.assert_allclose(matrix, np.linalg.solve(ata, atb).T, rtol=1e-10, atol=1e-12)
+    assert well_posed and np.isfinite(cond) and mse == pytest.approx(np.mean((src @ matrix.T - dst) ** 2), rel=1e-8)
+    lam = 0.01 * np.trace(ata) / 3.0
+    ridge_ref = np.linalg.solve(ata + lam * np.eye(3), atb + lam * np.diag(np.diag(atb) / np.diag(ata))).T
+    np.testing.assert_allclose(_fit_sums(ata, atb, bb, 2000, 0.01)[0], ridge_ref, rtol=1e-10, atol=1e-12)
+    grey = np.repeat(rng.random((500, 1)), 3, axis=1)  # rank 1: minimum-norm solution, not well posed
+    g_ata, g_atb = grey.T @ grey, grey.T @ grey
+    g_matrix, _, g_cond, g_ok = _fit_sums(g_ata, g_atb, float((grey * grey).sum()), 500, -1.0)
+    assert not g_ok and g_cond == np.inf
+    np.testing.assert_allclose(g_matrix, (np.linalg.pinv(g_ata) @ g_atb).T, atol=1e-9)
