@@ -1,0 +1,33 @@
+"""apps.warmup compiles the specialisations the pipeline uses, not others."""
+
+import numpy as np
+
+from apps.warmup import main
+from rgbd_envmap import envmap, sh
+from rgbd_envmap.capture import CaptureConfig, EnvironmentCapture
+from rgbd_envmap.geometry import look_at
+from rgbd_envmap.types import Intrinsics, RGBDFrame
+
+KERNELS = {"update": envmap._update_kernel, "pairs": envmap._frame_pairs_kernel, "samples": envmap._frame_samples_kernel,
+           "sh changes": sh._apply_changes}
+
+
+def test_warmup_compiles_what_the_capture_and_sh_tracker_then_use():
+    """After the warm-up, a capture of three frames and the SH tracker add no new specialisation to
+    the kernels it compiles (so a first run loads them from the cache instead of compiling)."""
+    assert main() == 0
+    before = {name: set(k.signatures) for name, k in KERNELS.items()}
+    assert all(before.values())
+    rng = np.random.default_rng(1)
+    intr = Intrinsics(32, 24, 28.0, 28.0, 15.5, 11.5)
+    cap = EnvironmentCapture(np.zeros(3), CaptureConfig(height=50, width=100, min_pairs=10))
+    tracker = sh.IncrementalProjection(5)
+    base = rng.uniform(0.2, 0.8, (24, 32, 3)).astype(np.float32)
+    for i, target in enumerate(([1.0, 0.1, 0.0], [1.0, 0.15, 0.02], [1.0, 0.2, 0.0])):
+        T = look_at([0.0, 0.0, 0.0], target)
+        frame = RGBDFrame(base, np.full((24, 32), 1.5, np.float32), np.ones((24, 32), bool), T, intr, i)
+        step = cap.process(frame, frame.known, frame)
+        assert step.projected, step.reason
+        tracker.coefficients(cap.em)
+    assert tracker.incremental_updates > 0
+    assert {name: set(k.signatures) for name, k in KERNELS.items()} == before
