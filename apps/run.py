@@ -83,8 +83,14 @@ class VideoWriter:
                        "-r", f"{self.fps:g}", "-i", "-", "-an", "-c:v", "libx264", "-preset", "veryfast", "-crf", "15",
                        "-threads", "1", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", str(self.path)]
                 self._log = tempfile.TemporaryFile()
+                # A session of its own (Ctrl-C on the job does not cut the video short before close),
+                # then the lowest CPU priority (set from here: preexec_fn is unsafe with threads).
                 self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log,
-                                              preexec_fn=_background_process)
+                                              start_new_session=True)
+                try:
+                    os.setpriority(os.PRIO_PROCESS, self._proc.pid, 19)
+                except OSError:  # it exited already; close() reports why
+                    pass
         if self._proc is not None:
             try:
                 self._proc.stdin.write(np.ascontiguousarray(rgb, dtype=np.uint8).data)
@@ -110,13 +116,6 @@ class VideoWriter:
         if self._cv is not None:
             self._cv.release()
             self._cv = None
-
-
-def _background_process() -> None:
-    """In the encoder's child process before exec: its own process group (Ctrl-C on the job does not
-    cut the video short before ``close``) and the lowest CPU priority."""
-    os.setpgrp()
-    os.nice(19)
 
 
 def save_envmap(out: Path, em) -> None:
