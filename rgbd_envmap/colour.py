@@ -291,7 +291,7 @@ def _sym3_eigh(a):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _equilibrated(ata):  # pragma: no cover - compiled
-    """(C, d, condition, eigenvalues, eigenvectors of C) with ata = diag(d) C diag(d) and C's
+    """(d, condition, eigenvalues, eigenvectors of C) with ata = diag(d) C diag(d) and C's
     diagonal 1 (zero columns keep d = 1). The condition number of C is invariant to per-channel
     gains of src, i.e. to exposure and white balance, so one threshold serves every frame."""
     d = np.empty(3)
@@ -303,7 +303,7 @@ def _equilibrated(ata):  # pragma: no cover - compiled
             c[i, j] = ata[i, j] / (d[i] * d[j])
     w, v = _sym3_eigh(c)
     cond = math.inf if w[0] <= _RANK_RTOL * w[2] else w[2] / w[0]
-    return c, d, cond, w, v
+    return d, cond, w, v
 
 
 @numba.njit(cache=True)
@@ -330,10 +330,10 @@ def _fit_sums(ata, atb, bb, n, ridge):  # pragma: no cover - compiled
     compiled call (as numpy 3×3 operations it cost 0.34 ms a frame in the main job, 0.12 compiled).
     ``ridge`` < 0: plain least squares through the column-equilibrated normal equations, the
     pseudo-inverse (minimum-norm solution) when they are not well posed, as a best effort;
-    ``ridge`` ≥ 0: the ridge fit, whose conditioning gate applies to the regularised system (rank
+    ``ridge`` > 0: the ridge fit, whose conditioning gate applies to the regularised system (rank
     deficiency of the data itself still counts). Solves go through the Jacobi eigendecomposition
     (:func:`_sym3_eigh`); the matrices agree with LAPACK's solve to rounding (tests)."""
-    c, d, cond, w, v = _equilibrated(ata)
+    d, cond, w, v = _equilibrated(ata)
     well_posed = math.isfinite(cond)
     lam = ridge * (ata[0, 0] + ata[1, 1] + ata[2, 2]) / 3.0
     if lam > 0.0:
@@ -342,7 +342,7 @@ def _fit_sums(ata, atb, bb, n, ridge):  # pragma: no cover - compiled
         for i in range(3):
             reg[i, i] += lam
             rhs[i, i] += lam * atb[i, i] / max(ata[i, i], 1e-300)
-        _, _, cond, _, _ = _equilibrated(reg)
+        cond = _equilibrated(reg)[1]
         wr, vr = _sym3_eigh(reg)
         x = _eigen_solve(wr, vr, rhs, 0.0)
         well_posed = well_posed and math.isfinite(cond)
@@ -522,12 +522,12 @@ def _ccm_from_sums(
         return result(identity, math.nan, "non-finite (normal equations overflow)")
 
     if method in SUMS_CCM_METHODS:
-        # ridge = 0 is plain least squares (a singular system would stop the ridge's solve).
+        # ridge = 0 (no pull towards the diagonal) is plain least squares.
         matrix, mse, cond, well_posed = _fit_sums(ata, atb, bb, n, ridge if method == "ridge" else -1.0)
     else:
         if data is None:
             raise InvalidInputError(f"method {method!r} fits the pairs themselves: pass them (estimate_ccm)")
-        cond = _equilibrated(ata)[2]
+        cond = _equilibrated(ata)[1]
         well_posed = math.isfinite(cond)
         a, b, sat = data
         a_k, b_k = a.astype(np.float64), b.astype(np.float64)
