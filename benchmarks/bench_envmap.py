@@ -737,10 +737,11 @@ def recorded_update_calls(root: Path) -> tuple[np.ndarray, int, int, list] | Non
     return origin, cfg.capture.height, cfg.capture.width, calls
 
 
-def update_against_baseline(root: Path, baseline, rounds: int, rows: dict) -> None:
-    """``update`` of the library and of ``baseline`` (another envmap module) on the recorded
-    session's update calls, alternately frame by frame; identical maps, stats and change logs
-    asserted after every frame. The first frame (into an empty map) is left out of the times."""
+def update_against_baseline(root: Path, baseline, rounds: int, rows: dict, threads: int = 1) -> None:
+    """``update`` of the library (with ``UpdateConfig.threads=threads``) and of ``baseline`` (another
+    envmap module, with the recorded config) on the recorded session's update calls, alternately
+    frame by frame; identical maps, stats and change logs asserted after every frame. The first
+    frame (into an empty map) is left out of the times."""
     data = recorded_update_calls(root)
     if data is None:
         print(f"recorded session: none at {root} (bash main.sh writes it); skipped")
@@ -754,9 +755,10 @@ def update_against_baseline(root: Path, baseline, rounds: int, rows: dict) -> No
             em.record_changes()
         for j, (pts, col, dev, focal, config, fill_only, seen) in enumerate(calls):
             stats = {}
+            configs = {"current": dataclasses.replace(config, threads=threads), "baseline": config}
             for k in (("current", "baseline") if (j + r) % 2 == 0 else ("baseline", "current")):
                 t0 = time.perf_counter()
-                stats[k] = mods[k].update(maps[k], pts, col, dev, focal, config, fill_only, seen)
+                stats[k] = mods[k].update(maps[k], pts, col, dev, focal, configs[k], fill_only, seen)
                 if j > 0:
                     ms[k][r, j - 1] = (time.perf_counter() - t0) * 1e3
             a, b = maps["current"], maps["baseline"]
@@ -773,9 +775,9 @@ def update_against_baseline(root: Path, baseline, rounds: int, rows: dict) -> No
     print(f"update on {len(calls)} recorded frames, {rounds} rounds: maps, stats and change logs identical "
           f"to the baseline after every frame")
     n = len(calls) - 1
-    rows[f"recorded session ({n} frames): update() per frame"] = _stats(list(ms["current"].ravel()))
+    rows[f"recorded session ({n} frames): update() per frame, {threads} thread(s)"] = _stats(list(ms["current"].ravel()))
     rows["  baseline module"] = _stats(list(ms["baseline"].ravel()))
-    rows["recorded session: update(), each frame's fastest round"] = _stats(list(ms["current"].min(0)))
+    rows[f"recorded session: update(), each frame's fastest round, {threads} thread(s)"] = _stats(list(ms["current"].min(0)))
     rows["  baseline module "] = _stats(list(ms["baseline"].min(0)))
 
 
@@ -828,6 +830,8 @@ def main() -> None:
     parser.add_argument("--update-baseline", type=Path, default=None,
                         help="a copy of another version of rgbd_envmap/envmap.py: time update() against it "
                              "on the recorded session (alone; --recorded-rounds passes)")
+    parser.add_argument("--update-threads", type=int, default=1,
+                        help="with --update-baseline: UpdateConfig.threads of the library's calls")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     baseline = load_translation_module(args.translation_baseline) if args.translation_baseline else None
@@ -835,7 +839,7 @@ def main() -> None:
     if args.update_baseline:
         rows = {}
         update_against_baseline(args.recorded, load_translation_module(args.update_baseline),
-                                max(1, args.recorded_rounds), rows)
+                                max(1, args.recorded_rounds), rows, args.update_threads)
         print_rows(rows)
         if args.json:
             args.json.write_text(json.dumps(rows, indent=2) + "\n")

@@ -57,12 +57,16 @@ References:
 from __future__ import annotations
 
 import math
+import os
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 
 import cv2
 import numba
 import numpy as np
+from numba.core.cpu import ParallelOptions
+from numba.core.errors import NumbaPerformanceWarning
 
 from rgbd_envmap._intrinsics import _bits_f32, _f32_bits, _prefetch
 from rgbd_envmap.checks import check_array, check_positive_int
@@ -111,6 +115,7 @@ class EnvironmentMap:
         self.depth_m = np.zeros((self.height, self.width), np.float32)
         self.valid = np.zeros((self.height, self.width), bool)
         self._scratch: tuple[np.ndarray, ...] | None = None
+        self._scratch2: tuple[np.ndarray, np.ndarray, _ChangeLog] | None = None
         self._changes: _ChangeLog | None = None
         self._spare_changes: _ChangeLog | None = None
 
@@ -131,6 +136,16 @@ class EnvironmentMap:
             self._scratch = (*self._scratch[:2], np.empty((n, 4), np.int32), np.empty(n, np.int64), np.empty(2 * n, np.int32))
         return self._scratch
 
+    def _second_thread_scratch(self, log_capacity: int) -> tuple[np.ndarray, np.ndarray, "_ChangeLog"]:
+        """The second thread's z-buffer band, tile flags and change log (as long as the map's, or
+        empty when the map is not recording) for a two-thread :func:`update`."""
+        zband, tiles = self._update_scratch()[:2]
+        if self._scratch2 is None:
+            self._scratch2 = (np.full_like(zband, _EMPTY_Z), np.zeros_like(tiles), _NO_LOG)
+        if self._scratch2[2].capacity != log_capacity:
+            self._scratch2 = (*self._scratch2[:2], _NO_LOG if log_capacity == 0 else _ChangeLog(log_capacity))
+        return self._scratch2
+
     @classmethod
     def _uninitialised(cls, height: int, width: int, origin: np.ndarray) -> "EnvironmentMap":
         """A map whose arrays are allocated but not zeroed, for a kernel that writes every pixel."""
@@ -141,6 +156,7 @@ class EnvironmentMap:
         em.depth_m = np.empty((em.height, em.width), np.float32)
         em.valid = np.empty((em.height, em.width), bool)
         em._scratch = None
+        em._scratch2 = None
         em._changes = None
         em._spare_changes = None
         return em
@@ -319,6 +335,13 @@ class UpdateConfig:
     #: z-depth by more than ``carve_tol_rel`` · z + ``carve_tol_abs_m`` (about 5 σ of the ToF noise).
     carve_tol_rel: float = 0.05
     carve_tol_abs_m: float = 0.02
+    #: threads for the rules and writes (1 or 2; more are used as 2, and 2 as 1 where numba has one
+    #: thread): the map's row bands split in two parts with about as many footprints each. The
+    #: result is the same bit for bit.
+    threads: int = 2
+
+    def __post_init__(self) -> None:
+        check_positive_int(self.threads, "UpdateConfig.threads")
 
 
 @dataclass(frozen=True)
@@ -546,31 +569,13 @@ def _carve_tests(n, cols, flags, st, ct, col_sc, df, base, origin, cam, seen, bu
 
 
 @numba.njit(cache=True)
-def _update_kernel(
-    points, colours, fill_only, origin, device, height, width, focal_px, splat, splat_scale, max_splat,
-    planes, depth, valid, trusted_r, removal_r, zband, tiles, rec, rec_key, listed, row_sc, col_sc,
-    log_idx, log_old, log_valid, log_n, carve, cam, seen,
-):  # pragma: no cover - compiled
-    """:func:`update`: the frame's samples z-buffered (the closest wins, the first on equal float32
-    distances; :func:`_z_key`), then the rules per touched pixel, in raster order. Every taken pixel
-    is appended to the change log (``log_*``, entries from ``log_n`` on, while they fit; a
-    zero-length log records nothing).
-
-    Band by band: the samples' footprints are recorded and listed per band of 2**_BAND_SHIFT rows
-    they reach, then for each band they are z-buffered into ``zband`` (one band of int64 keys,
-    :data:`_EMPTY_Z` between updates: it stays in cache, where a whole-map z-buffer cost a memory
-    round trip per touched pixel twice) and the band's rows go through the rules at once.
-    With ``carve``, a touched pixel no other rule takes, whose sample lies beyond the stored depth by
-    more than the carving tolerance, is tested with :func:`_is_free` (``cam``, ``seen``; a row's
-    candidates at once by :func:`_carve_tests`, the same arithmetic) and taken if free ("freed":
-    the depth is replaced, not averaged).
-    Returns (pixels touched, counts: taken, empty, closer, trusted, removal, freed, carving tests; new log length)."""
-    n = points.shape[0]
-    band_rows = 1 << _BAND_SHIFT
-    n_bands = (height + band_rows - 1) >> _BAND_SHIFT
-    n_tiles = (width + (1 << _TILE_SHIFT) - 1) >> _TILE_SHIFT
-    hw = height * width
-    pf, df, vf = planes.reshape(3, hw), depth.reshape(hw), valid.reshape(hw)
+def _footprint_records(points, colours, fill_only, origin, device, height, width, focal_px, splat, splat_scale,
+                       max_splat, i0, i1, rec, rec_key, per_band, work):  # pragma: no cover - compiled
+    """:func:`_update_kernel`'s step 1 for samples ``i0`` to ``i1`` − 1: each usable sample's
+    footprint (rows, first column, columns) and key into ``rec`` / ``rec_key`` from index ``i0`` on,
+    and the count of footprints reaching band b added to ``per_band[b + 1]``. With ``work`` (one
+    entry per band; empty: none), 24 + the footprint's pixels are added to its first band's entry,
+    an estimate of the band's share of steps 3 and 4. Returns how many records were written."""
     row_px = height / math.pi
     col_px = width / (2.0 * math.pi)
     bx, by, bz = np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK)
@@ -578,16 +583,15 @@ def _update_kernel(
     qx, qy, qz = np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK)
     fr0, fr1, fc0, fc1 = np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK)
     # 1. Footprints: rows ra..rb, columns a0 (wrapped) and how many, and the key, per usable sample.
-    per_band = np.zeros(n_bands + 2, np.int64)
-    n_rec = 0
+    n_rec = i0
     # Band counts: consecutive samples mostly fall in the same band, so the counts of the current
     # band b_cur and of the next (footprints reaching into it) are kept in locals and added when
     # the band changes. A loop over the one or two bands each footprint reaches, exiting after one
     # or two unpredictably, cost more than its counting (with the listing below: 135 → 85 µs a
     # frame of the recorded session; spreading the counters over lanes alone gained 15).
     b_cur, n_cur, n_next = 0, 0, 0
-    for start in range(0, n, _BLOCK):
-        m = _mn(_BLOCK, n - start)
+    for start in range(i0, i1, _BLOCK):
+        m = _mn(_BLOCK, i1 - start)
         _block_coords(points, start, m, origin[0], origin[1], origin[2], row_px, col_px, bx, by, bz, bv, bu, br)
         for j in range(m):  # the points again, block-local: read from (N, 3) the loop stayed scalar
             qx[j], qy[j], qz[j] = points[start + j, 0], points[start + j, 1], points[start + j, 2]
@@ -610,6 +614,8 @@ def _update_kernel(
             rec_key[_u(n_rec)] = _z_key(br[j], fill_only[_u(i)], i)
             n_rec += 1
             b0, b1 = ra >> _BAND_SHIFT, rb >> _BAND_SHIFT
+            if work.shape[0] > 0:
+                work[_u(b0)] += 24 + (rb - ra + 1) * rec[_u(n_rec - 1), 3]
             if b0 != b_cur:
                 per_band[_u(b_cur + 1)] += n_cur
                 per_band[_u(b_cur + 2)] += n_next
@@ -620,7 +626,16 @@ def _update_kernel(
                 per_band[_u(b + 1)] += 1
     per_band[_u(b_cur + 1)] += n_cur
     per_band[_u(b_cur + 2)] += n_next
-    # 2. The footprints listed per band (counting sort, in sample order).
+    return n_rec - i0
+
+
+@numba.njit(cache=True)
+def _list_footprints(rec, n_bands, k0, n0, k1, n1, per_band, listed):  # pragma: no cover - compiled
+    """:func:`_update_kernel`'s step 2: the records ``k0`` to ``k0 + n0`` − 1, then ``k1`` to
+    ``k1 + n1`` − 1, listed per band they reach (counting sort, in that order), from the counts of
+    :func:`_footprint_records`. Returns (per_band, listed): the lists of band b are
+    ``listed[per_band[b]:per_band[b + 1]]`` (``listed`` is a new array when the given one is too
+    short)."""
     for b in range(n_bands):
         per_band[b + 1] += per_band[b]
     if per_band[n_bands] >= listed.shape[0]:  # footprints over about two bands on average
@@ -631,18 +646,38 @@ def _update_kernel(
     fill = per_band[:n_bands + 1].copy()
     spare = per_band[n_bands]
     b_cur, f_cur, f_next = 0, fill[0], fill[1]
-    for k in range(n_rec):
-        b0, b1 = rec[_u(k), 0] >> _BAND_SHIFT, rec[_u(k), 1] >> _BAND_SHIFT
-        if b0 != b_cur:
-            fill[_u(b_cur)], fill[_u(b_cur + 1)] = f_cur, f_next
-            b_cur, f_cur, f_next = b0, fill[_u(b0)], fill[_u(b0 + 1)]
-        listed[_u(f_cur)] = k
-        f_cur += 1
-        listed[_u(f_next if b1 > b0 else spare)] = k
-        f_next += b1 > b0
-        for b in range(b0 + 2, b1 + 1):
-            listed[_u(fill[_u(b)])] = k
-            fill[_u(b)] += 1
+    for part in range(2):
+        lo, hi = (k0, k0 + n0) if part == 0 else (k1, k1 + n1)
+        for k in range(lo, hi):
+            b0, b1 = rec[_u(k), 0] >> _BAND_SHIFT, rec[_u(k), 1] >> _BAND_SHIFT
+            if b0 != b_cur:
+                fill[_u(b_cur)], fill[_u(b_cur + 1)] = f_cur, f_next
+                b_cur, f_cur, f_next = b0, fill[_u(b0)], fill[_u(b0 + 1)]
+            listed[_u(f_cur)] = k
+            f_cur += 1
+            listed[_u(f_next if b1 > b0 else spare)] = k
+            f_next += b1 > b0
+            for b in range(b0 + 2, b1 + 1):
+                listed[_u(fill[_u(b)])] = k
+                fill[_u(b)] += 1
+    return per_band, listed
+
+
+@numba.njit(cache=True)
+def _update_bands(
+    band_lo, band_hi, per_band, listed, rec, rec_key, colours, origin, device, height, width, planes, depth, valid,
+    trusted_r, removal_r, zband, tiles, row_sc, col_sc, log_idx, log_old, log_valid, log_n, carve, cam, seen,
+):  # pragma: no cover - compiled
+    """:func:`_update_kernel`'s steps 3 and 4 for bands ``band_lo`` to ``band_hi`` − 1: the bands'
+    footprints z-buffered into ``zband`` (``tiles`` flag the touched 32-column tiles), then the rules
+    and writes row by row, appending to the log from ``log_n`` on. Bands touch disjoint rows, so two
+    calls on disjoint band ranges, each with its own ``zband``, ``tiles`` and log, may run at once.
+    Returns (pixels touched, taken, taken that had data, of those closer, freed, carving tests, log length)."""
+    n_bands = (height + (1 << _BAND_SHIFT) - 1) >> _BAND_SHIFT
+    band_rows = 1 << _BAND_SHIFT
+    n_tiles = (width + (1 << _TILE_SHIFT) - 1) >> _TILE_SHIFT
+    hw = height * width
+    pf, df, vf = planes.reshape(3, hw), depth.reshape(hw), valid.reshape(hw)
     # The removal rule needs the device within removal_r of the pixel's ray, at an angle α from the
     # device's direction with dev_r·sin α < removal_r and α < 90°, so α < asin(removal_r / dev_r);
     # a row whose polar angle differs from the device's by more than that (plus two rows, far above
@@ -668,7 +703,7 @@ def _update_kernel(
     flag_words = flags.view(np.uint64)
     cand_c, cand_u = np.empty(width + 8, np.int64), np.empty((4, width))
     run_lo, run_hi, run_flagged = np.empty(n_tiles, np.int64), np.empty(n_tiles, np.int64), np.empty(n_tiles, np.int64)
-    for band in range(n_bands):
+    for band in range(band_lo, band_hi):
         if per_band[band] == per_band[band + 1]:
             continue
         row0 = band << _BAND_SHIFT
@@ -886,6 +921,117 @@ def _update_kernel(
             for j in range(n_runs):  # the band's z-buffer is empty again where this row was touched
                 for c in range(run_lo[j], run_hi[j]):
                     zband[_u(zb + c)] = _EMPTY_Z
+    return n_touched, n_taken, n_ok, n_closer, n_freed, n_tested, log_n
+
+
+@numba.njit(cache=True)
+def _update_kernel(
+    points, colours, fill_only, origin, device, height, width, focal_px, splat, splat_scale, max_splat,
+    planes, depth, valid, trusted_r, removal_r, zband, tiles, rec, rec_key, listed, row_sc, col_sc,
+    log_idx, log_old, log_valid, log_n, carve, cam, seen,
+):  # pragma: no cover - compiled
+    """:func:`update`: the frame's samples z-buffered (the closest wins, the first on equal float32
+    distances; :func:`_z_key`), then the rules per touched pixel, in raster order. Every taken pixel
+    is appended to the change log (``log_*``, entries from ``log_n`` on, while they fit; a
+    zero-length log records nothing).
+
+    Band by band: the samples' footprints are recorded and listed per band of 2**_BAND_SHIFT rows
+    they reach, then for each band they are z-buffered into ``zband`` (one band of int64 keys,
+    :data:`_EMPTY_Z` between updates: it stays in cache, where a whole-map z-buffer cost a memory
+    round trip per touched pixel twice) and the band's rows go through the rules at once.
+    With ``carve``, a touched pixel no other rule takes, whose sample lies beyond the stored depth by
+    more than the carving tolerance, is tested with :func:`_is_free` (``cam``, ``seen``; a row's
+    candidates at once by :func:`_carve_tests`, the same arithmetic) and taken if free ("freed":
+    the depth is replaced, not averaged).
+    Returns (pixels touched, counts: taken, empty, closer, trusted, removal, freed, carving tests; new log length)."""
+    n_bands = (height + (1 << _BAND_SHIFT) - 1) >> _BAND_SHIFT
+    per_band = np.zeros(n_bands + 2, np.int64)
+    n_rec = _footprint_records(points, colours, fill_only, origin, device, height, width, focal_px, splat,
+                               splat_scale, max_splat, 0, points.shape[0], rec, rec_key, per_band, per_band[:0])
+    per_band, listed = _list_footprints(rec, n_bands, 0, n_rec, 0, 0, per_band, listed)
+    n_touched, n_taken, n_ok, n_closer, n_freed, n_tested, log_n = _update_bands(
+        0, n_bands, per_band, listed, rec, rec_key, colours, origin, device, height, width, planes, depth, valid,
+        trusted_r, removal_r, zband, tiles, row_sc, col_sc, log_idx, log_old, log_valid, log_n, carve, cam, seen)
+    ox, oy, oz = device[0] - origin[0], device[1] - origin[1], device[2] - origin[2]
+    trusted = rule_trusted(math.sqrt(ox * ox + oy * oy + oz * oz), trusted_r)
+    n_trusted = n_ok - n_closer if trusted else 0
+    n_removal = 0 if trusted else n_ok - n_closer - n_freed
+    counts = np.array([n_taken, n_taken - n_ok, n_closer, n_trusted, n_removal, n_freed, n_tested], np.int64)
+    return n_touched, counts, log_n
+
+
+# OpenMP first: numba tries TBB first, and the TBB some packages install here is too old for it
+# (a warning on every run). An explicit choice in the environment is left alone.
+if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
+    numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+# With only prange on, numba says of each prange body, compiled on its own, that nothing in it
+# could be parallelised: true, and not a problem.
+warnings.filterwarnings("ignore", message=r"\s*The keyword argument 'parallel=True' was specified but no transformation",
+                        category=NumbaPerformanceWarning)
+
+#: numba's parallel transforms for the two-thread kernels: the explicit prange loops only (converting
+#: the array expressions too compiled a parallel loop for each: 11 → 5 s of compile time).
+#: (An options object, not a dict: numba empties the dict it is given, as it reads it.)
+_PRANGE_ONLY = ParallelOptions({"prange": True, "numpy": False, "reduction": False, "setitem": False, "stencil": False,
+                                "fusion": False, "comprehension": False, "inplace_binop": False})
+
+
+@numba.njit(cache=True, parallel=_PRANGE_ONLY)
+def _update_kernel_2t(
+    points, colours, fill_only, origin, device, height, width, focal_px, splat, splat_scale, max_splat,
+    planes, depth, valid, trusted_r, removal_r, zband, tiles, rec, rec_key, listed, row_sc, col_sc,
+    log_idx, log_old, log_valid, log_n, carve, cam, seen, zband2, tiles2, log2_idx, log2_old, log2_valid,
+):  # pragma: no cover - compiled
+    """:func:`_update_kernel` on two threads, with the same result (the map, counts and change log
+    bit for bit): the footprints of each half of the samples are recorded at the same time and
+    listed, then the bands are split where half the estimated work (footprints and their pixels,
+    :func:`_footprint_records`) lies before the split, the upper part updated with ``zband`` / ``tiles`` and
+    logged into ``log_*`` as there, the lower part at the same time with ``zband2`` / ``tiles2``
+    into ``log2_*`` (as long as ``log_idx``, or empty when not logging), whose entries are then
+    appended, so the log stays in raster order."""
+    n_bands = (height + (1 << _BAND_SHIFT) - 1) >> _BAND_SHIFT
+    n = points.shape[0]
+    mid = n >> 1
+    counts2 = np.zeros((2, n_bands + 2), np.int64)
+    work2 = np.zeros((2, n_bands), np.int64)
+    n_recs = np.zeros(2, np.int64)
+    for t in numba.prange(2):  # the footprints of each half of the samples
+        n_recs[t] = _footprint_records(points, colours, fill_only, origin, device, height, width, focal_px, splat,
+                                       splat_scale, max_splat, 0 if t == 0 else mid, mid if t == 0 else n, rec,
+                                       rec_key, counts2[t], work2[t])
+    per_band = counts2[0] + counts2[1]
+    per_band, listed = _list_footprints(rec, n_bands, 0, n_recs[0], mid, n_recs[1], per_band, listed)
+    # The split: where the estimated work before it first reaches half of all.
+    work = work2[0] + work2[1]
+    half = work.sum() >> 1
+    split, done = 0, 0
+    while split < n_bands and done + work[split] <= half:
+        done += work[split]
+        split += 1
+    res = np.zeros((2, 7), np.int64)
+    for t in numba.prange(2):
+        # One call site (a call per branch compiled _update_bands twice, for its literal arguments).
+        lo, hi, n_log = (0, split, log_n) if t == 0 else (split, n_bands, 0)
+        a, b, c, d, e, f, g = _update_bands(
+            lo, hi, per_band, listed, rec, rec_key, colours, origin, device, height, width, planes, depth, valid,
+            trusted_r, removal_r, zband if t == 0 else zband2, tiles if t == 0 else tiles2, row_sc, col_sc,
+            log_idx if t == 0 else log2_idx, log_old if t == 0 else log2_old, log_valid if t == 0 else log2_valid,
+            n_log, carve, cam, seen)
+        res[t, 0], res[t, 1], res[t, 2], res[t, 3], res[t, 4], res[t, 5], res[t, 6] = a, b, c, d, e, f, g
+    # The lower part's log after the upper part's (while it fits: the log's length counts on past
+    # its capacity, as the single-threaded kernel's does).
+    n0, n1 = res[0, 6], res[1, 6]
+    cap = log_idx.shape[0]
+    for j in range(_mn(n1, _mn(log2_idx.shape[0], cap - n0))):
+        log_idx[n0 + j] = log2_idx[j]
+        log_old[n0 + j, 0], log_old[n0 + j, 1], log_old[n0 + j, 2] = log2_old[j, 0], log2_old[j, 1], log2_old[j, 2]
+        log_valid[n0 + j] = log2_valid[j]
+    log_n = n0 + n1
+    ox, oy, oz = device[0] - origin[0], device[1] - origin[1], device[2] - origin[2]
+    trusted = rule_trusted(math.sqrt(ox * ox + oy * oy + oz * oz), trusted_r)
+    n_touched = res[0, 0] + res[1, 0]
+    n_taken, n_ok, n_closer = res[0, 1] + res[1, 1], res[0, 2] + res[1, 2], res[0, 3] + res[1, 3]
+    n_freed, n_tested = res[0, 4] + res[1, 4], res[0, 5] + res[1, 5]
     n_trusted = n_ok - n_closer if trusted else 0
     n_removal = 0 if trusted else n_ok - n_closer - n_freed
     counts = np.array([n_taken, n_taken - n_ok, n_closer, n_trusted, n_removal, n_freed, n_tested], np.int64)
@@ -915,6 +1061,11 @@ def _col_limits(height: int, width: int, max_splat: int) -> np.ndarray:
     rows' angle at that latitude (1/sin θ more columns), at most half the map."""
     rows, _ = _trig_tables(height, width)
     return np.minimum(max_splat / np.maximum(rows[:, 0].astype(np.float64), 1e-6), width // 2)
+
+
+def _threads(requested: int) -> int:
+    """Threads a kernel may use: ``requested``, at most numba's thread count."""
+    return min(int(requested), numba.get_num_threads())
 
 
 def update(
@@ -955,13 +1106,18 @@ def update(
     log = _NO_LOG if em._changes is None else em._changes
     carve = bool(config.carve) and seen is not None
     cam, seen_depth = _seen_arrays(seen, config) if carve else (_NO_CAM, _NO_SEEN)
-    n_touched, counts, n_logged = _update_kernel(
+    args = (
         pts, np.ascontiguousarray(col), np.ascontiguousarray(flags), em.origin, dev, em.height, em.width,
         float(focal_px), bool(config.splat), float(config.splat_scale), int(config.max_splat_px),
         em.radiance_planes, em.depth_m, em.valid,
         float(config.trusted_radius_m), float(config.removal_radius_m), zband, tiles, rec, rec_key, listed,
         *_trig_tables(em.height, em.width), log.idx, log.old, log.was_valid, log.n, carve, cam, seen_depth,
     )
+    if _threads(config.threads) >= 2:
+        zband2, tiles2, log2 = em._second_thread_scratch(log.capacity)
+        n_touched, counts, n_logged = _update_kernel_2t(*args, zband2, tiles2, log2.idx, log2.old, log2.was_valid)
+    else:
+        n_touched, counts, n_logged = _update_kernel(*args)
     if log is not _NO_LOG:
         log.n = int(n_logged)
         log.updates += 1

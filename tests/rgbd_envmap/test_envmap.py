@@ -6,6 +6,7 @@ import pytest
 
 from rgbd_envmap.envmap import (
     EnvironmentMap,
+    SeenDepth,
     UpdateConfig,
     collect_pairs,
     is_backface,
@@ -16,8 +17,9 @@ from rgbd_envmap.envmap import (
     translate,
     update,
 )
-from rgbd_envmap.errors import InvalidInputError, ShapeError, UnknownMethodError
-from rgbd_envmap.geometry import equirect_directions, equirect_pixel_index
+from rgbd_envmap.errors import InvalidInputError, RangeError, ShapeError, UnknownMethodError
+from rgbd_envmap.geometry import equirect_directions, equirect_pixel_index, look_at
+from rgbd_envmap.types import Intrinsics
 from sim.groundtruth import render_envmap
 from sim.raycast import SceneRaycaster
 from sim.scene import scene_from_dict
@@ -488,6 +490,74 @@ def test_update_kernel_equals_the_reference_on_odd_widths_across_the_seam_and_po
 
     zband, tiles = em_k._update_scratch()[:2]
     assert (zband == _EMPTY_Z).all() and not tiles.any()
+
+
+@pytest.mark.parametrize("capacity", [None, 300])
+def test_two_thread_update_equals_one_thread(monkeypatch, capacity):
+    # The two-thread kernel lists each half of the samples at once and splits the map's bands in
+    # two parts updated at once, each with its own z-buffer band and change log: the maps, the
+    # counts and the change log (raster order; with a log too short for the frame, the same first
+    # entries and the same overflow) must equal the one-thread kernel's after every frame, with
+    # carving on. Forced to two threads even where numba has one (then the parts run in turn).
+    import dataclasses
+
+    from rgbd_envmap import envmap as envmap_module
+
+    monkeypatch.setattr(envmap_module, "_threads", lambda requested: requested)
+    rng = np.random.default_rng(5)
+    h, w = 64, 128
+    origin = (0.1, 0.0, -0.05)
+    maps = {t: EnvironmentMap(h, w, origin) for t in (1, 2)}
+    for em in maps.values():
+        em.record_changes()
+        if capacity is not None:
+            em._changes = envmap_module._ChangeLog(capacity)
+    intr = Intrinsics(32, 24, 24.0, 24.0, 15.5, 11.5)
+    overflowed = 0
+    frames = [([1.0, 0.5, 0.2], 900), ([0.4, -0.1, 0.5], 900), ([0.12, -0.04, -0.03], 900), ([0.5, 0.0, 0.0], 0),
+              ([-0.6, 0.3, -0.2], 1)]
+    for device, n in frames:
+        dirs = rng.normal(size=(n, 3))
+        dirs[: n // 3, 2] -= 2.0  # a third towards the floor: bands below the equator with large footprints
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        dist = np.where(rng.random(n) < 0.2, rng.uniform(0.03, 0.3, n), rng.uniform(0.5, 4.0, n))
+        pts = np.asarray(origin) + dirs * dist[:, None]
+        pts[rng.random(n) < 0.02] = np.nan
+        cols = rng.random((n, 3)).astype(np.float32)
+        fill_only = rng.random(n) < 0.3
+        T = look_at(device, [0.0, 0.0, 0.0])
+        seen = SeenDepth(rng.uniform(0.5, 5.0, (24, 32)).astype(np.float32), rng.random((24, 32)) < 0.9, intr, T)
+        stats, changes = {}, {}
+        cap = maps[2]._changes.capacity  # grown by take_changes after an overflow
+        for t, em in maps.items():
+            cfg = UpdateConfig(max_splat_px=8, threads=t)
+            stats[t] = update(em, pts, cols, np.array(device), 40.0, cfg, fill_only, seen)
+            changes[t] = em.take_changes()
+        assert dataclasses.astuple(stats[1]) == dataclasses.astuple(stats[2])
+        a, b = maps[1], maps[2]
+        np.testing.assert_array_equal(a.valid, b.valid)
+        np.testing.assert_array_equal(a.depth_m.view(np.uint32), b.depth_m.view(np.uint32))
+        np.testing.assert_array_equal(a.radiance_planes.view(np.uint32), b.radiance_planes.view(np.uint32))
+        ca, cb = changes[1], changes[2]
+        assert (ca.complete, ca.updates) == (cb.complete, cb.updates)
+        np.testing.assert_array_equal(ca.index, cb.index)
+        np.testing.assert_array_equal(ca.was_valid, cb.was_valid)
+        np.testing.assert_array_equal(ca.old_radiance.view(np.uint32), cb.old_radiance.view(np.uint32))
+        assert cb.complete == (stats[1].taken <= cap)
+        overflowed += not cb.complete
+        if not cb.complete:
+            assert len(cb.index) == cap
+    assert overflowed == (capacity is not None)
+    assert maps[2].valid.mean() > 0.3 and stats[2].samples == 1
+    from rgbd_envmap.envmap import _EMPTY_Z
+
+    for zband, tiles in (maps[2]._update_scratch()[:2], maps[2]._scratch2[:2]):
+        assert (zband == _EMPTY_Z).all() and not tiles.any()
+
+
+def test_update_threads_must_be_positive():
+    with pytest.raises(RangeError):
+        UpdateConfig(threads=0)
 
 
 def test_update_without_usable_samples_changes_nothing():
