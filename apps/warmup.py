@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rgbd_envmap.capture import CaptureConfig
 from rgbd_envmap.envmap import EnvironmentMap, SeenDepth, UpdateConfig, _frame_pair_sums, _frame_samples, update
 from rgbd_envmap.geometry import look_at
 from rgbd_envmap.sh import IncrementalProjection
@@ -42,7 +43,8 @@ def main() -> int:
         update(em, pts, colours, T.translation, 14.0, UpdateConfig(), fill_only,
                SeenDepth(frame.depth_m, frame.known, intr, T))
         tracker.coefficients(em)  # the first call projects the whole map, the second follows the changes
-    _frame_pair_sums(em, frames[0].depth_m, frames[0].known, intr, frames[0].T_world_from_cam, frames[0].rgb, 0.01)
+    _frame_pair_sums(em, frames[0].depth_m, frames[0].known, intr, frames[0].T_world_from_cam, frames[0].rgb, 0.01,
+                     threads=CaptureConfig().pair_threads)
     return 0
 
 

@@ -541,9 +541,9 @@ def session(sim_factory, seconds: float, rows: dict) -> EnvironmentMap:
         return both(lambda: timed("update new", lambda: new_update(em, pts, col, dev, focal, config, fill_only, seen)),
                     lambda: timed("update old", lambda: old_update(pts, col, dev, focal, config, fill_only)))
 
-    def pairs_both(em, depth, mask, intrinsics, T, rgb, max_diff):
+    def pairs_both(em, depth, mask, intrinsics, T, rgb, max_diff, threads=1):
         def current():
-            *sums, n = new_sums(em, depth, mask, intrinsics, T, rgb, max_diff)
+            *sums, n = new_sums(em, depth, mask, intrinsics, T, rgb, max_diff, threads=threads)
             _ccm_from_sums(*sums, cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs,
                            max_condition=DEFAULT_MAX_CONDITION, noise_std=None, ridge=DEFAULT_RIDGE)
             return (*sums, n)

@@ -79,6 +79,9 @@ class CaptureConfig:
     width: int = 2000
     #: pairs need the map's depth within this distance of the sample's (metres).
     pair_max_depth_diff_m: float = 0.01
+    #: threads for finding the pairs of the "least_squares" and "ridge" fits (1 or 2; the same sums
+    #: bit for bit). The map update's are ``update.threads``.
+    pair_threads: int = 2
     colour_correction: bool = True
     #: "ridge" by default: plain least squares fits noise on the grey-dominated pairs of a room
     #: (docs/colour_correction.md); "least_squares" is the paper's fit.
@@ -105,6 +108,7 @@ class CaptureConfig:
         if not float(self.max_mse) >= 0.0:
             raise RangeError(f"CaptureConfig.max_mse: expected a number ≥ 0, got {self.max_mse}")
         check_positive_int(self.min_pairs, "CaptureConfig.min_pairs")
+        check_positive_int(self.pair_threads, "CaptureConfig.pair_threads")
 
 
 @dataclass(frozen=True)
@@ -163,7 +167,7 @@ class EnvironmentCapture:
             # (bit-identical to collecting the pairs and summing them), so no pair array is stored.
             with t.stage("Collect paired samples"):
                 *sums, n_found = _frame_pair_sums(self.em, raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam,
-                                                  raw.rgb, cfg.pair_max_depth_diff_m)
+                                                  raw.rgb, cfg.pair_max_depth_diff_m, threads=cfg.pair_threads)
             with t.stage("Compute colour correction matrix"):
                 ccm = _ccm_from_sums(*sums, cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs,
                                      max_condition=DEFAULT_MAX_CONDITION, noise_std=None, ridge=DEFAULT_RIDGE)

@@ -1283,15 +1283,25 @@ def _frame_pairs_kernel(depth_img, mask, rays, rot, trans, rgb, origin, height, 
     buffer that :func:`_pairs_block` reads as it reads an (N, 3) array, so the pairs are the same.
     With a non-empty ``sums`` the pairs are accumulated there (:func:`_pairs_block`) and the
     returned arrays are empty; the count of pairs is returned either way."""
-    h, w = depth_img.shape
     n = 0 if sums.shape[0] > 0 else np.count_nonzero(mask)
     src, dst = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+    k = _frame_pairs_rows(depth_img, mask, rays, rot, trans, rgb, 0, depth_img.shape[0], origin, height, width, depth,
+                          valid, planes, max_diff, src, dst, sums, counts, saturation)
+    return src[:k] if n else src, dst[:k] if n else dst, k
+
+
+@numba.njit(cache=True)
+def _frame_pairs_rows(depth_img, mask, rays, rot, trans, rgb, r0, r1, origin, height, width, depth, valid, planes,
+                      max_diff, src, dst, sums, counts, saturation):  # pragma: no cover - compiled
+    """:func:`_frame_pairs_kernel`'s pass over frame rows ``r0`` to ``r1`` − 1: the pairs stored
+    into ``src`` / ``dst`` or, with a non-empty ``sums``, accumulated there. Returns their count."""
+    w = depth_img.shape[1]
     pts, col = np.empty((_BLOCK, 3)), np.empty((_BLOCK, 3), np.float32)
     bx, by, bz = np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK)
     bv, bu, br = np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK)
     bi = np.empty((2, _BLOCK), np.int64)
     k, m = 0, 0
-    for r in range(h):
+    for r in range(r0, r1):
         for c in range(w):
             if mask[r, c]:
                 _world_point(depth_img, rays, rot, trans, r, c, pts, m)
@@ -1301,9 +1311,40 @@ def _frame_pairs_kernel(depth_img, mask, rays, rot, trans, rgb, origin, height, 
                     k = _pairs_block(pts, 0, m, col, 0, origin, height, width, depth, valid, planes, max_diff, src, dst, k,
                                      bx, by, bz, bv, bu, br, bi, sums, counts, saturation)
                     m = 0
-    k = _pairs_block(pts, 0, m, col, 0, origin, height, width, depth, valid, planes, max_diff, src, dst, k,
-                     bx, by, bz, bv, bu, br, bi, sums, counts, saturation)
-    return src[:k] if n else src, dst[:k] if n else dst, k
+    return _pairs_block(pts, 0, m, col, 0, origin, height, width, depth, valid, planes, max_diff, src, dst, k,
+                        bx, by, bz, bv, bu, br, bi, sums, counts, saturation)
+
+
+@numba.njit(cache=True, parallel=_PRANGE_ONLY)
+def _frame_pair_sums_2t(depth_img, mask, rays, rot, trans, rgb, origin, height, width, depth, valid, planes,
+                        max_diff, sums, counts, saturation):  # pragma: no cover - compiled
+    """:func:`_frame_pairs_kernel` with ``sums`` on two threads, the same sums bit for bit: the
+    frame's rows split where about half the ``mask`` pixels lie above, each part's pairs found and
+    stored at the same time, then accumulated in order (the first part's, then the second's), as
+    the one-thread pass accumulates them. Returns the count of pairs."""
+    h = depth_img.shape[0]
+    per_row = np.zeros(h + 1, np.int64)
+    for r in range(h):
+        per_row[r + 1] = per_row[r] + np.count_nonzero(mask[r])
+    split = 0
+    while split < h and 2 * per_row[split + 1] <= per_row[h]:
+        split += 1
+    src = np.empty((per_row[h], 3), np.float32)
+    dst = np.empty((per_row[h], 3), np.float32)
+    found = np.zeros(2, np.int64)
+    none_f, none_i = np.zeros(0), np.zeros(0, np.int64)
+    for t in numba.prange(2):
+        lo, hi = (0, split) if t == 0 else (split, h)
+        at = per_row[lo]  # the part's pairs from its first mask pixel's slot on
+        found[t] = _frame_pairs_rows(depth_img, mask, rays, rot, trans, rgb, lo, hi, origin, height, width, depth,
+                                     valid, planes, max_diff, src[at:per_row[hi]], dst[at:per_row[hi]], none_f, none_i,
+                                     saturation)
+    pf = dst.T
+    for t in range(2):
+        at = 0 if t == 0 else per_row[split]
+        for j in range(at, at + found[t]):
+            _accumulate_pair(src, j, pf, j, sums, counts, saturation)
+    return found[0] + found[1]
 
 
 def _frame_pair_inputs(em: EnvironmentMap, depth_m: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics,
@@ -1331,15 +1372,18 @@ def _frame_pairs(em: EnvironmentMap, depth_m: np.ndarray, mask: np.ndarray, intr
 
 def _frame_pair_sums(em: EnvironmentMap, depth_m: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics,
                      T_world_from_cam: RigidTransform, rgb: np.ndarray, max_depth_diff_m: float = 0.01,
-                     saturation: float = 1.0) -> tuple[np.ndarray, np.ndarray, float, int, int, int, int]:
+                     saturation: float = 1.0, threads: int = 1) -> tuple[np.ndarray, np.ndarray, float, int, int, int, int]:
     """The pairs of :func:`_frame_pairs` reduced, in the same pass, to the colour fit's
     normal-equation sums: ``(AᵀA, AᵀB, tr(BᵀB), kept, non-finite, saturated, pairs)``, bit for bit
     what :func:`rgbd_envmap.colour._ccm_sums` gives for those pairs (same values, same order).
     No pair array is written or read back (the pairs stage plus the fit's pass over them cost
-    1.15 + 0.33 ms in the main run)."""
+    1.15 + 0.33 ms in the main run). ``threads=2``: :func:`_frame_pair_sums_2t` (the same result)."""
     args = _frame_pair_inputs(em, depth_m, mask, intrinsics, T_world_from_cam, rgb)
     sums, counts = np.zeros(16), np.zeros(3, np.int64)
-    _, _, k = _frame_pairs_kernel(*args, float(max_depth_diff_m), sums, counts, float(saturation))
+    if _threads(threads) >= 2:
+        k = _frame_pair_sums_2t(*args, float(max_depth_diff_m), sums, counts, float(saturation))
+    else:
+        _, _, k = _frame_pairs_kernel(*args, float(max_depth_diff_m), sums, counts, float(saturation))
     ata = sums[[0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(3, 3)
     return ata, sums[6:15].reshape(3, 3).copy(), float(sums[15]), int(counts[0]), int(counts[1]), int(counts[2]), int(k)
 

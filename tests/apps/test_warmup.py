@@ -9,7 +9,9 @@ from rgbd_envmap.geometry import look_at
 from rgbd_envmap.types import Intrinsics, RGBDFrame
 
 # The update's kernel for the default two threads (the one-thread kernel where numba has one thread).
-KERNELS = {"update": envmap._update_kernel_2t if envmap._threads(2) == 2 else envmap._update_kernel, "pairs": envmap._frame_pairs_kernel, "samples": envmap._frame_samples_kernel,
+TWO = envmap._threads(2) == 2
+KERNELS = {"update": envmap._update_kernel_2t if TWO else envmap._update_kernel,
+           "pairs": envmap._frame_pair_sums_2t if TWO else envmap._frame_pairs_kernel, "samples": envmap._frame_samples_kernel,
            "sh changes": sh._apply_changes}
 
 

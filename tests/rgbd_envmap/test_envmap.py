@@ -655,11 +655,19 @@ def test_fused_frame_samples_and_pairs_equal_the_separate_calls():
 
 
 
-def test_fused_pair_sums_equal_summing_the_collected_pairs_bit_for_bit():
+@pytest.mark.parametrize("threads", [1, 2])
+def test_fused_pair_sums_equal_summing_the_collected_pairs_bit_for_bit(monkeypatch, threads):
     """The pairs reduced to normal-equation sums inside the pair pass give exactly what collecting
-    them and summing gives (same values, same order), NaN and saturated colours included."""
+    them and summing gives (same values, same order), NaN and saturated colours included; on two
+    threads too (forced where numba has one: the parts then run in turn)."""
+    from rgbd_envmap import envmap as envmap_module
     from rgbd_envmap.colour import _ccm_sums
-    from rgbd_envmap.envmap import _frame_pair_sums, _frame_pairs, frame_points
+    from rgbd_envmap.envmap import _frame_pairs, frame_points
+
+    monkeypatch.setattr(envmap_module, "_threads", lambda requested: requested)
+
+    def _frame_pair_sums(*args, **kwargs):
+        return envmap_module._frame_pair_sums(*args, **kwargs, threads=threads)
 
     rng, intr, T, depth, mask, rgb = _random_rgbd(13, 64, 48, 50.0)
     rgb *= 1.1  # some channels ≥ 1: saturated
@@ -677,6 +685,15 @@ def test_fused_pair_sums_equal_summing_the_collected_pairs_bit_for_bit():
     # An empty map: no pairs, zero sums.
     empty = _frame_pair_sums(EnvironmentMap(H, W), depth, mask, intr, T, rgb)
     assert empty[3:] == (0, 0, 0, 0) and not empty[0].any() and not empty[1].any()
+    # No pixel in the mask, one pixel, one row.
+    one = np.zeros_like(mask)
+    one[5, 5] = True
+    for m in (np.zeros_like(mask), one, mask & (np.arange(mask.shape[0]) == 20)[:, None]):
+        src, dst = _frame_pairs(em, depth, m, intr, T, rgb, 0.05)
+        ata, atb, bb, n, n_nonfinite, n_saturated = _ccm_sums(src, dst, 1.0)
+        got = _frame_pair_sums(em, depth, m, intr, T, rgb, 0.05, saturation=1.0)
+        np.testing.assert_array_equal(got[0], ata)
+        assert got[2:] == (bb, n, n_nonfinite, n_saturated, len(src))
 
 def _reference_translate(em, offset, max_splat_px=8, max_rel_jump=0.2):
     """The forward warp one source pixel at a time, in raster order, with a sequential z-test
