@@ -10,7 +10,9 @@ defaults — one axis at a time, so every row differs from the default row in ex
 - ``translation``: the final map moved 10 cm along +x by the depth-aware warp and by Gardner's
   sphere operator, against the map fed the same data at the displaced origin (paper Fig. 9 protocol).
 
-Points run in parallel over the cores (one process each, spawned). Writes ``points/<name>/`` (a run
+Points run in parallel over the cores (one process each, spawned), each on one thread (numba's
+thread count set to 1, so the map update and the colour pairs take their one-thread kernels, the
+same results; points timed on two threads each would compete for the cores). Writes ``points/<name>/`` (a run
 folder per point), ``sweep.csv``, ``sweep.md`` (time and error side by side) and ``pareto.png``.
 """
 
@@ -185,6 +187,13 @@ def _pareto(path: Path, rows: list[dict]) -> None:
     plt.close(fig)
 
 
+def _one_thread() -> None:
+    """A sweep worker's initialiser: numba's parallel kernels on one thread."""
+    import numba
+
+    numba.set_num_threads(1)
+
+
 def run_sweep(log: str | Path, out: str | Path, *, jobs: int | None = None, axes: list[str] | None = None,
               progress: bool = True) -> Path:
     """Run the grid on ``log``; returns the path of sweep.md."""
@@ -199,7 +208,7 @@ def run_sweep(log: str | Path, out: str | Path, *, jobs: int | None = None, axes
     (out / "points").mkdir(parents=True, exist_ok=True)
     jobs = jobs or os.cpu_count() or 1
     results: dict[str, dict] = {}
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn"), initializer=_one_thread) as pool:
         futures = {pool.submit(_run_point, str(log), str(out / "points" / _slug(p.name)), p, origin): p for p in points}
         for fut in tqdm(as_completed(futures), total=len(futures), desc="sweep", unit="point", disable=not progress):
             results[futures[fut].name] = fut.result()
