@@ -140,6 +140,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from apps.compile_once import install_from_env
+
+    install_from_env()  # a first run's warm-up beside this process: compile each kernel once (scripts/main.sh)
     try:
         if args.command == "simulate":
             from apps.simulate import SimulateOptions, run_simulate

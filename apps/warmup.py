@@ -5,6 +5,8 @@ core (map update 12 s, SH tracker 9.5 s, colour pairs 4.6 s, ...; numba's compil
 other core idled. ``scripts/main.sh`` starts this module in the background when the cache is cold, so
 that these kernels compile on the other core while the main process builds the simulator and compiles
 its own; when the main process reaches a kernel already compiled here, numba loads it from the cache.
+Both processes take a lock per kernel while compiling it (:mod:`apps.compile_once`), so a kernel
+one of them is compiling is loaded by the other when it is done, never compiled twice.
 The inputs are tiny but have the pipeline's dtypes and layouts, so the same specialisations are cached.
 Nothing else is written; a failure here only means the main process compiles the kernel itself.
 
@@ -15,36 +17,82 @@ from __future__ import annotations
 
 import numpy as np
 
+from apps.compile_once import install_from_env
+from rgbd_envmap import assets, prt, render
 from rgbd_envmap.capture import CaptureConfig
+from rgbd_envmap.colour import DEFAULT_MAX_CONDITION, DEFAULT_RIDGE, _ccm_from_sums
 from rgbd_envmap.envmap import EnvironmentMap, SeenDepth, UpdateConfig, _frame_pair_sums, _frame_samples, update
 from rgbd_envmap.geometry import look_at
+from rgbd_envmap.pipeline import PipelineConfig
 from rgbd_envmap.sh import IncrementalProjection
 from rgbd_envmap.types import Intrinsics, RGBDFrame
 
 
 def main() -> int:
-    """Run each kernel on a 16×12 frame and a 40×20 map, in the order that leaves the main process
-    the least to compile itself: the kernels it reaches last first (the SH tracker follows the map
-    update; the ingest kernels, which it reaches first, are left to it: 78.6 → 64.8 s for a fresh
-    2 s session with the first version of this module, which compiled those too)."""
+    """Run each kernel on a 16×12 frame and a 40×20 map, the kernels the main process reaches last
+    first: it compiles the ingest kernels and the map update of its first depth frame itself
+    (about 40 s in a traced cold run), meanwhile this compiles the colour pairs and fit, which it
+    reaches at the second depth frame, the SH projection and tracker and the renderer; then the
+    update, which by then it loads (or waits for). A trace of a cold run with the earlier order (update first):
+    the update was not done when the main process reached it, and the pairs were compiled by both."""
+    install_from_env()
+    cfg = CaptureConfig()
     rng = np.random.default_rng(0)
     intr = Intrinsics(16, 12, 14.0, 14.0, 7.5, 5.5)
-    em = EnvironmentMap(20, 40)
-    tracker = IncrementalProjection(5)
     frames = []
     for step, target in enumerate(([1.0, 0.2, 0.0], [1.0, -0.3, 0.1])):
         T = look_at([0.01 * step, 0.0, 0.0], target)
         frames.append(RGBDFrame(rng.random((12, 16, 3)).astype(np.float32),
                                 rng.uniform(1.0, 2.0, (12, 16)).astype(np.float32), np.ones((12, 16), bool), T, intr, step))
+    # 1. Colour pairs and the fit (a map with data everywhere: depth 1.5 m).
+    em = EnvironmentMap(20, 40)
+    em.valid[:] = True
+    em.depth_m[:] = 1.5
+    em.radiance_planes[:] = rng.random(em.radiance_planes.shape, dtype=np.float32)
+    f = frames[0]
+    # A writable mask, as mark_reliable's (frames hold read-only arrays: numba compiles another
+    # specialisation for those).
+    *sums, _ = _frame_pair_sums(em, f.depth_m, f.known.copy(), intr, f.T_world_from_cam, f.rgb,
+                                cfg.pair_max_depth_diff_m, threads=cfg.pair_threads)
+    _ccm_from_sums(*sums, cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=1, max_condition=DEFAULT_MAX_CONDITION,
+                   noise_std=None, ridge=DEFAULT_RIDGE)
+    # 2. The SH projection, then the tracker on changes logged as the update logs them (raster
+    # order; new data and changed colours), without the update.
+    em.valid[:, ::3] = False
+    tracker = IncrementalProjection(5)
+    tracker.coefficients(em)  # the first call projects the whole map and starts the log
+    log = em._changes
+    idx = np.arange(0, em.height * em.width, 7, dtype=np.int64)
+    log.idx[:len(idx)] = idx
+    log.old[:len(idx)] = em.radiance_planes.reshape(3, -1)[:, idx].T
+    log.was_valid[:len(idx)] = em.valid.reshape(-1)[idx]
+    log.n, log.updates = len(idx), 1
+    em.valid.reshape(-1)[idx] = True
+    em.radiance_planes.reshape(3, -1)[:, idx] = 0.5
+    tracker.coefficients(em)
+    # 3. Rendering and compositing a colour frame: the object and shadow plane of the default
+    # config in front of a 64×48 camera (arrays as the pipeline passes them).
+    oc = PipelineConfig().object
+    obj = assets.load_virtual_object(oc.name, height_m=oc.height_m)
+    plane_v, plane_f = prt._plane_grid(oc.plane_size_m, oc.plane_resolution)
+    base = np.array([1.0, 0.0, -0.2])
+    cam = Intrinsics(64, 48, 60.0, 60.0, 31.5, 23.5)
+    renderer = render.Renderer(cam, backend="numba")
+    try:
+        layer = renderer.render(look_at([0.0, 0.0, 0.0], base), obj.vertices + base, obj.faces,
+                                np.full((len(obj.vertices), 3), 0.5, np.float32), plane_v + base, plane_f,
+                                np.full(len(plane_v), 0.5, np.float32))
+        render.composite(np.zeros((48, 64, 3), np.uint8), layer, ccm_inverse=np.eye(3), shadow_grey=0.15)
+    finally:
+        renderer.close()
+    # 4. The samples and the map update (with the change log, as the capture runs it).
+    em = EnvironmentMap(20, 40)
+    em.record_changes()
     for frame in frames:
         T = frame.T_world_from_cam
         flags = np.zeros((12, 16), np.uint8)  # the edge margin's dilated mask
         pts, colours, fill_only = _frame_samples(frame.depth_m, frame.known, intr, T, frame.rgb, flags, np.eye(3))
-        update(em, pts, colours, T.translation, 14.0, UpdateConfig(), fill_only,
-               SeenDepth(frame.depth_m, frame.known, intr, T))
-        tracker.coefficients(em)  # the first call projects the whole map, the second follows the changes
-    _frame_pair_sums(em, frames[0].depth_m, frames[0].known, intr, frames[0].T_world_from_cam, frames[0].rgb, 0.01,
-                     threads=CaptureConfig().pair_threads)
+        update(em, pts, colours, T.translation, 14.0, cfg.update, fill_only, SeenDepth(frame.depth_m, frame.known, intr, T))
     return 0
 
 

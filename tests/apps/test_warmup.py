@@ -3,7 +3,7 @@
 import numpy as np
 
 from apps.warmup import main
-from rgbd_envmap import envmap, sh
+from rgbd_envmap import envmap, render, sh
 from rgbd_envmap.capture import CaptureConfig, EnvironmentCapture
 from rgbd_envmap.geometry import look_at
 from rgbd_envmap.types import Intrinsics, RGBDFrame
@@ -12,7 +12,7 @@ from rgbd_envmap.types import Intrinsics, RGBDFrame
 TWO = envmap._threads(2) == 2
 KERNELS = {"update": envmap._update_kernel_2t if TWO else envmap._update_kernel,
            "pairs": envmap._frame_pair_sums_2t if TWO else envmap._frame_pairs_kernel, "samples": envmap._frame_samples_kernel,
-           "sh changes": sh._apply_changes}
+           "sh changes": sh._apply_changes, "raster": render._raster_mesh}
 
 
 def test_warmup_compiles_what_the_capture_and_sh_tracker_then_use():
@@ -29,7 +29,7 @@ def test_warmup_compiles_what_the_capture_and_sh_tracker_then_use():
     for i, target in enumerate(([1.0, 0.1, 0.0], [1.0, 0.15, 0.02], [1.0, 0.2, 0.0])):
         T = look_at([0.0, 0.0, 0.0], target)
         frame = RGBDFrame(base, np.full((24, 32), 1.5, np.float32), np.ones((24, 32), bool), T, intr, i)
-        step = cap.process(frame, frame.known, frame)
+        step = cap.process(frame, frame.known.copy(), frame)  # a writable mask, as mark_reliable's
         assert step.projected, step.reason
         tracker.coefficients(cap.em)
     assert tracker.incremental_updates > 0
