@@ -31,9 +31,9 @@ from rgbd_envmap.types import Intrinsics, RGBDFrame
 def main() -> int:
     """Run each kernel on a 16×12 frame and a 40×20 map, the kernels the main process reaches last
     first: it compiles the ingest kernels and the map update of its first depth frame itself
-    (about 40 s in a traced cold run), meanwhile this compiles the colour pairs and fit, which it
-    reaches at the second depth frame, the SH projection and tracker and the renderer; then the
-    update, which by then it loads (or waits for). A trace of a cold run with the earlier order (update first):
+    (about 40 s in a traced cold run), meanwhile this compiles the renderer, which it reaches at
+    the first composited colour frame after that, the colour pairs and fit and the SH tracker,
+    which it reaches at the second depth frame; then the update, which by then it loads. A trace of a cold run with the earlier order (update first):
     the update was not done when the main process reached it, and the pairs were compiled by both."""
     install_from_env()
     cfg = CaptureConfig()
@@ -44,33 +44,7 @@ def main() -> int:
         T = look_at([0.01 * step, 0.0, 0.0], target)
         frames.append(RGBDFrame(rng.random((12, 16, 3)).astype(np.float32),
                                 rng.uniform(1.0, 2.0, (12, 16)).astype(np.float32), np.ones((12, 16), bool), T, intr, step))
-    # 1. Colour pairs and the fit (a map with data everywhere: depth 1.5 m).
-    em = EnvironmentMap(20, 40)
-    em.valid[:] = True
-    em.depth_m[:] = 1.5
-    em.radiance_planes[:] = rng.random(em.radiance_planes.shape, dtype=np.float32)
-    f = frames[0]
-    # A writable mask, as mark_reliable's (frames hold read-only arrays: numba compiles another
-    # specialisation for those).
-    *sums, _ = _frame_pair_sums(em, f.depth_m, f.known.copy(), intr, f.T_world_from_cam, f.rgb,
-                                cfg.pair_max_depth_diff_m, threads=cfg.pair_threads)
-    _ccm_from_sums(*sums, cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=1, max_condition=DEFAULT_MAX_CONDITION,
-                   noise_std=None, ridge=DEFAULT_RIDGE)
-    # 2. The SH projection, then the tracker on changes logged as the update logs them (raster
-    # order; new data and changed colours), without the update.
-    em.valid[:, ::3] = False
-    tracker = IncrementalProjection(5)
-    tracker.coefficients(em)  # the first call projects the whole map and starts the log
-    log = em._changes
-    idx = np.arange(0, em.height * em.width, 7, dtype=np.int64)
-    log.idx[:len(idx)] = idx
-    log.old[:len(idx)] = em.radiance_planes.reshape(3, -1)[:, idx].T
-    log.was_valid[:len(idx)] = em.valid.reshape(-1)[idx]
-    log.n, log.updates = len(idx), 1
-    em.valid.reshape(-1)[idx] = True
-    em.radiance_planes.reshape(3, -1)[:, idx] = 0.5
-    tracker.coefficients(em)
-    # 3. Rendering and compositing a colour frame: the object and shadow plane of the default
+    # 1. Rendering and compositing a colour frame: the object and shadow plane of the default
     # config in front of a 64×48 camera (arrays as the pipeline passes them).
     oc = PipelineConfig().object
     obj = assets.load_virtual_object(oc.name, height_m=oc.height_m)
@@ -85,6 +59,32 @@ def main() -> int:
         render.composite(np.zeros((48, 64, 3), np.uint8), layer, ccm_inverse=np.eye(3), shadow_grey=0.15)
     finally:
         renderer.close()
+    # 2. Colour pairs and the fit (a map with data everywhere: depth 1.5 m).
+    em = EnvironmentMap(20, 40)
+    em.valid[:] = True
+    em.depth_m[:] = 1.5
+    em.radiance_planes[:] = rng.random(em.radiance_planes.shape, dtype=np.float32)
+    f = frames[0]
+    # A writable mask, as mark_reliable's (frames hold read-only arrays: numba compiles another
+    # specialisation for those).
+    *sums, _ = _frame_pair_sums(em, f.depth_m, f.known.copy(), intr, f.T_world_from_cam, f.rgb,
+                                cfg.pair_max_depth_diff_m, threads=cfg.pair_threads)
+    _ccm_from_sums(*sums, cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=1, max_condition=DEFAULT_MAX_CONDITION,
+                   noise_std=None, ridge=DEFAULT_RIDGE)
+    # 3. The SH projection, then the tracker on changes logged as the update logs them (raster
+    # order; new data and changed colours), without the update.
+    em.valid[:, ::3] = False
+    tracker = IncrementalProjection(5)
+    tracker.coefficients(em)  # the first call projects the whole map and starts the log
+    log = em._changes
+    idx = np.arange(0, em.height * em.width, 7, dtype=np.int64)
+    log.idx[:len(idx)] = idx
+    log.old[:len(idx)] = em.radiance_planes.reshape(3, -1)[:, idx].T
+    log.was_valid[:len(idx)] = em.valid.reshape(-1)[idx]
+    log.n, log.updates = len(idx), 1
+    em.valid.reshape(-1)[idx] = True
+    em.radiance_planes.reshape(3, -1)[:, idx] = 0.5
+    tracker.coefficients(em)
     # 4. The samples and the map update (with the change log, as the capture runs it).
     em = EnvironmentMap(20, 40)
     em.record_changes()
