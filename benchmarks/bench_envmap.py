@@ -832,8 +832,15 @@ def main() -> None:
                              "on the recorded session (alone; --recorded-rounds passes)")
     parser.add_argument("--update-threads", type=int, default=1,
                         help="with --update-baseline: UpdateConfig.threads of the library's calls")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="numba threads for the library's kernels (default 1: the issue's figures are "
+                             "one-thread; the pipeline's default is 2, see docs/envmap.md, fifth round)")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
+    import numba
+
+    numba.set_num_threads(max(1, min(max(args.threads, args.update_threads if args.update_baseline else 1),
+                                      numba.config.NUMBA_NUM_THREADS)))
     baseline = load_translation_module(args.translation_baseline) if args.translation_baseline else None
     t_rounds = args.translation_rounds or max(5, args.repeats // 5)
     if args.update_baseline:
