@@ -9,18 +9,41 @@
 - :func:`_store_nt`: a non-temporal (streaming) store, for output written once and not read back.
 - :func:`_min_run8`: ``min`` of up to 8 consecutive int64 entries and a key, as one masked vector
   load / min / store.
+- :data:`_PRANGE_ONLY`: numba's parallel options of the two-thread kernels (and the threading
+  layer they run on).
 
 Each is tested through the kernels that use it (tests/rgbd_envmap/test_envmap.py, test_sh.py).
 """
 
 from __future__ import annotations
 
+import os
+import warnings
+
+import numba
 from llvmlite import ir
 from numba import types
 from numba.core import cgutils
+from numba.core.cpu import ParallelOptions
+from numba.core.errors import NumbaPerformanceWarning
 from numba.extending import intrinsic
 
 __all__: list[str] = []  # private helpers of the compiled kernels
+
+# OpenMP first: numba tries TBB first, and the TBB some packages install here is too old for it
+# (a warning on every run). An explicit choice in the environment is left alone.
+if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
+    numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+# With only prange on, numba says of each prange body, compiled on its own, that nothing in it
+# could be parallelised: true, and not a problem.
+warnings.filterwarnings("ignore", message=r"\s*The keyword argument 'parallel=True' was specified but no transformation",
+                        category=NumbaPerformanceWarning)
+
+#: numba's parallel transforms for the two-thread kernels: the explicit prange loops only, so nothing
+#: else in them (array expressions, reductions) is turned into threaded loops behind the code's back.
+#: (An options object, not a dict: numba empties the dict it is given, as it reads it.)
+_PRANGE_ONLY = ParallelOptions({"prange": True, "numpy": False, "reduction": False, "setitem": False, "stencil": False,
+                                "fusion": False, "comprehension": False, "inplace_binop": False})
 
 
 @intrinsic

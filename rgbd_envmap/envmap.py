@@ -57,18 +57,14 @@ References:
 from __future__ import annotations
 
 import math
-import os
-import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 
 import cv2
 import numba
 import numpy as np
-from numba.core.cpu import ParallelOptions
-from numba.core.errors import NumbaPerformanceWarning
 
-from rgbd_envmap._intrinsics import _bits_f32, _f32_bits, _prefetch
+from rgbd_envmap._intrinsics import _PRANGE_ONLY, _bits_f32, _f32_bits, _prefetch
 from rgbd_envmap.checks import check_array, check_positive_int
 from rgbd_envmap.errors import InvalidInputError, RangeError
 from rgbd_envmap.geometry import brown_distort, pixel_rays
@@ -958,22 +954,6 @@ def _update_kernel(
     n_removal = 0 if trusted else n_ok - n_closer - n_freed
     counts = np.array([n_taken, n_taken - n_ok, n_closer, n_trusted, n_removal, n_freed, n_tested], np.int64)
     return n_touched, counts, log_n
-
-
-# OpenMP first: numba tries TBB first, and the TBB some packages install here is too old for it
-# (a warning on every run). An explicit choice in the environment is left alone.
-if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
-    numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
-# With only prange on, numba says of each prange body, compiled on its own, that nothing in it
-# could be parallelised: true, and not a problem.
-warnings.filterwarnings("ignore", message=r"\s*The keyword argument 'parallel=True' was specified but no transformation",
-                        category=NumbaPerformanceWarning)
-
-#: numba's parallel transforms for the two-thread kernels: the explicit prange loops only (converting
-#: the array expressions too compiled a parallel loop for each: 11 → 5 s of compile time).
-#: (An options object, not a dict: numba empties the dict it is given, as it reads it.)
-_PRANGE_ONLY = ParallelOptions({"prange": True, "numpy": False, "reduction": False, "setitem": False, "stencil": False,
-                                "fusion": False, "comprehension": False, "inplace_binop": False})
 
 
 @numba.njit(cache=True, parallel=_PRANGE_ONLY)
