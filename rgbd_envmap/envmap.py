@@ -841,7 +841,7 @@ def _update_bands(
                             for c in range(w << 3, (w << 3) + 8):
                                 cand_c[_u(n_cand)] = c  # cand_c has spare slots past the last candidate
                                 n_cand += flags[_u(c)] == 1
-                    _carve_tests(n_cand, cand_c, flags, st, ct, col_sc, df, base, origin, cam, seen, cand_u)
+                    _carve_tests(np.int64(n_cand), cand_c, flags, st, ct, col_sc, df, base, origin, cam, seen, cand_u)
                     n_tested += n_cand
                 for j in range(n_runs):
                     if run_flagged[j] == 0:  # nothing taken or tested in the run (often)
@@ -1164,7 +1164,10 @@ def _pairs_block(points, start, m, colours, cstart, origin, height, width, depth
     hw = height * width
     pf, df, vf = planes.reshape(3, hw), depth.reshape(hw), valid.reshape(hw)
     accumulate = sums.shape[0] > 0
-    _block_coords(points, start, m, origin[0], origin[1], origin[2], row_px, col_px, bx, by, bz, bv, bu, br)
+    # int64 start and count: _pairs_block is inlined where they are literal zeros, and numba compiled
+    # _block_coords once more per literal.
+    _block_coords(points, np.int64(start), np.int64(m), origin[0], origin[1], origin[2], row_px, col_px,
+                  bx, by, bz, bv, bu, br)
     # In stages over the block: the map pixels of the whole block are requested before any is
     # read, and the colours of the block's pairs before any is used: the frame's region of the
     # 34 MB map is rarely still cached when the next depth frame arrives, and one miss at a time

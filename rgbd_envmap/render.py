@@ -186,7 +186,11 @@ def _check_mesh(vertices: object, faces: object, prefix: str) -> tuple[np.ndarra
     if f.size and (f.min() < 0 or f.max() >= len(v)):
         raise RangeError(
             f"{prefix}_faces: expected vertex indices in [0, {len(v) - 1}], got [{f.min()}, {f.max()}]")
-    return v.astype(np.float64, copy=False), np.ascontiguousarray(f, dtype=np.int32)
+    # Faces as a read-only view either way: numba compiles one specialisation of the rasteriser
+    # per array flag, and the object's faces are read-only, the plane's not (5.5 s of a first run).
+    f = np.ascontiguousarray(f, dtype=np.int32).view()
+    f.flags.writeable = False
+    return v.astype(np.float64, copy=False), f
 
 
 def _check_inputs(T_world_from_cam, object_vertices_world, object_faces, object_colours,

@@ -1012,7 +1012,7 @@ def _apply_changes(flat, H, W, index, old, was_valid, state, none, phi1, radius,
     todo = iscr[2 * R + H + 1:2 * R + H + 1 + W]  # a row's written pixels that need more than staging
     fresh = iscr[2 * R + H + 1 + W:]  # the pixels that get data, for C
     nf = 0
-    nr = 0
+    nr = np.int64(0)  # not a literal 0, which numba compiled _flush for separately (3 s on a first run)
     # A (and B's colours). The log lists pixels in raster order. B only reads the state here: A's
     # walks must see it as it was.
     last = np.uint64(n - 1)

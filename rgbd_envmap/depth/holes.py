@@ -81,9 +81,10 @@ def _three_rays(y, x, src_v, src_l, src_r, flat, w, wf, inv_w, sqrt2):  # pragma
     """(Σ w_n d_n, Σ w_n) over the vertical ray and the diagonal rays towards columns x − 1 and x + 1
     of one sweep; ``src_*`` hold the row of each ray's nearest known pixel (the diagonal ones as views
     indexed by x for this row)."""
-    wv, dv = _ray(y, x, src_v[x], 0, flat, w, wf, inv_w, 1.0)
-    wl, dl = _ray(y, x, src_l[x], -1, flat, w, wf, inv_w, sqrt2)
-    wr, dr = _ray(y, x, src_r[x], 1, flat, w, wf, inv_w, sqrt2)
+    # The directions as int64, not literals: numba compiled _ray once per literal value.
+    wv, dv = _ray(y, x, src_v[x], np.int64(0), flat, w, wf, inv_w, 1.0)
+    wl, dl = _ray(y, x, src_l[x], np.int64(-1), flat, w, wf, inv_w, sqrt2)
+    wr, dr = _ray(y, x, src_r[x], np.int64(1), flat, w, wf, inv_w, sqrt2)
     return wv * dv + wl * dl + wr * dr, wv + wl + wr
 
 

@@ -300,7 +300,8 @@ def _noise_model_kernel(
     wy_ring = np.zeros((3, w + 2))
     wyy_ring = np.zeros((3, w + 2))
     n_ring = np.zeros((3, w + 2))
-    _noise_model_row(depth, known, 0, 1, noise_rel, noise_abs, w_ring, wy_ring, wyy_ring, n_ring)
+    # Row and slot as int64, not literals (numba compiled the row kernel a second time for them).
+    _noise_model_row(depth, known, np.int64(0), np.int64(1), noise_rel, noise_abs, w_ring, wy_ring, wyy_ring, n_ring)
     # The ten weighted sums over the 3×3 window (offsets u = column, v = row, in {−1, 0, 1}) are
     # separable: column sums with [1 1 1], [−1 0 1], [1 0 1], then the same along the row.
     a1 = np.empty(w + 2)
