@@ -4,7 +4,7 @@
 # OUT=DIR, DURATION=SECONDS; extra arguments go to `simulate`).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-. "$ROOT/scripts/bootstrap.sh"
+BOOTSTRAP_EXTRAS="${BOOTSTRAP_EXTRAS-}" . "$ROOT/scripts/bootstrap.sh"  # no test extras for the main job
 cd "$ROOT"
 # A first run (no numba cache yet): the pipeline's largest kernels compile on the other core while
 # this job builds the simulator and compiles its own (apps/warmup.py; a fresh 2 s session 78.6 → 62.0 s),
