@@ -11,9 +11,10 @@ defaults — one axis at a time, so every row differs from the default row in ex
   sphere operator, against the map fed the same data at the displaced origin (paper Fig. 9 protocol).
 
 Points run in parallel over the cores (one process each, spawned), each on one thread (numba's
-thread count set to 1, so the map update and the colour pairs take their one-thread kernels, the
-same results; points timed on two threads each would compete for the cores). Writes ``points/<name>/`` (a run
-folder per point), ``sweep.csv``, ``sweep.md`` (time and error side by side) and ``pareto.png``.
+thread count set to 1, so the map update and the colour pairs take their one-thread kernels, with
+the same results; points timed on two threads each would compete for the cores). Writes
+``points/<name>/`` (a run folder per point), ``sweep.csv``, ``sweep.md`` (time and error side by
+side) and ``pareto.png``.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ from apps.compile_once import install_from_env
 from rgbd_envmap import assets, prt, render
 from rgbd_envmap.capture import CaptureConfig
 from rgbd_envmap.colour import DEFAULT_MAX_CONDITION, DEFAULT_RIDGE, _ccm_from_sums
-from rgbd_envmap.envmap import EnvironmentMap, SeenDepth, UpdateConfig, _frame_pair_sums, _frame_samples, update
+from rgbd_envmap.envmap import EnvironmentMap, SeenDepth, _frame_pair_sums, _frame_samples, update
 from rgbd_envmap.geometry import look_at
 from rgbd_envmap.pipeline import PipelineConfig
 from rgbd_envmap.sh import IncrementalProjection
@@ -30,11 +30,12 @@ from rgbd_envmap.types import Intrinsics, RGBDFrame
 
 def main() -> int:
     """Run each kernel on a 16×12 frame and a 40×20 map, the kernels the main process reaches last
-    first: it compiles the ingest kernels and the map update of its first depth frame itself
-    (about 40 s in a traced cold run), meanwhile this compiles the renderer, which it reaches at
-    the first composited colour frame after that, the colour pairs and fit and the SH tracker,
-    which it reaches at the second depth frame; then the update, which by then it loads. A trace of a cold run with the earlier order (update first):
-    the update was not done when the main process reached it, and the pairs were compiled by both."""
+    first: it compiles the ingest kernels and the map update of its first depth frame itself (about
+    40 s in a traced cold run); meanwhile this compiles the renderer, which it reaches at the first
+    composited colour frame after that, then the colour pairs and fit and the SH tracker, which it
+    reaches at the second depth frame, and last the update, which by then it loads. With the update
+    first (the earlier order), a traced cold run showed the update unfinished when the main process
+    reached it, and the pairs compiled by both processes."""
     install_from_env()
     cfg = CaptureConfig()
     rng = np.random.default_rng(0)

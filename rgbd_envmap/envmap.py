@@ -331,9 +331,9 @@ class UpdateConfig:
     #: z-depth by more than ``carve_tol_rel`` · z + ``carve_tol_abs_m`` (about 5 σ of the ToF noise).
     carve_tol_rel: float = 0.05
     carve_tol_abs_m: float = 0.02
-    #: threads for the rules and writes (1 or 2; more are used as 2, and 2 as 1 where numba has one
-    #: thread): the map's row bands split in two parts with about as many footprints each. The
-    #: result is the same bit for bit.
+    #: threads (1 or 2; more are used as 2, and 2 as 1 where numba has one thread): the footprints of
+    #: each half of the samples, then the map's row bands in two parts of about equal estimated work,
+    #: at once (:func:`_update_kernel_2t`). The map, counts and change log are the same bit for bit.
     threads: int = 2
 
     def __post_init__(self) -> None:
