@@ -669,7 +669,6 @@ def _update_bands(
     and writes row by row, appending to the log from ``log_n`` on. Bands touch disjoint rows, so two
     calls on disjoint band ranges, each with its own ``zband``, ``tiles`` and log, may run at once.
     Returns (pixels touched, taken, taken that had data, of those closer, freed, carving tests, log length)."""
-    n_bands = (height + (1 << _BAND_SHIFT) - 1) >> _BAND_SHIFT
     band_rows = 1 << _BAND_SHIFT
     n_tiles = (width + (1 << _TILE_SHIFT) - 1) >> _TILE_SHIFT
     hw = height * width
@@ -920,6 +919,18 @@ def _update_bands(
     return n_touched, n_taken, n_ok, n_closer, n_freed, n_tested, log_n
 
 
+@numba.njit(cache=True, inline="always")
+def _rule_counts(origin, device, trusted_r, n_taken, n_ok, n_closer, n_freed, n_tested):  # pragma: no cover - compiled
+    """The update's counts (taken, empty, closer, trusted, removal, freed, carving tests) from four
+    sums: a freed pixel had data and was neither closer nor trusted (carving tests only pixels the
+    other rules refuse), and "trusted" holds for all pixels or none."""
+    ox, oy, oz = device[0] - origin[0], device[1] - origin[1], device[2] - origin[2]
+    trusted = rule_trusted(math.sqrt(ox * ox + oy * oy + oz * oz), trusted_r)
+    n_trusted = n_ok - n_closer if trusted else 0
+    n_removal = 0 if trusted else n_ok - n_closer - n_freed
+    return np.array([n_taken, n_taken - n_ok, n_closer, n_trusted, n_removal, n_freed, n_tested], np.int64)
+
+
 @numba.njit(cache=True)
 def _update_kernel(
     points, colours, fill_only, origin, device, height, width, focal_px, splat, splat_scale, max_splat,
@@ -948,12 +959,7 @@ def _update_kernel(
     n_touched, n_taken, n_ok, n_closer, n_freed, n_tested, log_n = _update_bands(
         0, n_bands, per_band, listed, rec, rec_key, colours, origin, device, height, width, planes, depth, valid,
         trusted_r, removal_r, zband, tiles, row_sc, col_sc, log_idx, log_old, log_valid, log_n, carve, cam, seen)
-    ox, oy, oz = device[0] - origin[0], device[1] - origin[1], device[2] - origin[2]
-    trusted = rule_trusted(math.sqrt(ox * ox + oy * oy + oz * oz), trusted_r)
-    n_trusted = n_ok - n_closer if trusted else 0
-    n_removal = 0 if trusted else n_ok - n_closer - n_freed
-    counts = np.array([n_taken, n_taken - n_ok, n_closer, n_trusted, n_removal, n_freed, n_tested], np.int64)
-    return n_touched, counts, log_n
+    return n_touched, _rule_counts(origin, device, trusted_r, n_taken, n_ok, n_closer, n_freed, n_tested), log_n
 
 
 @numba.njit(cache=True, parallel=_PRANGE_ONLY)
@@ -1007,15 +1013,8 @@ def _update_kernel_2t(
         log_old[n0 + j, 0], log_old[n0 + j, 1], log_old[n0 + j, 2] = log2_old[j, 0], log2_old[j, 1], log2_old[j, 2]
         log_valid[n0 + j] = log2_valid[j]
     log_n = n0 + n1
-    ox, oy, oz = device[0] - origin[0], device[1] - origin[1], device[2] - origin[2]
-    trusted = rule_trusted(math.sqrt(ox * ox + oy * oy + oz * oz), trusted_r)
-    n_touched = res[0, 0] + res[1, 0]
-    n_taken, n_ok, n_closer = res[0, 1] + res[1, 1], res[0, 2] + res[1, 2], res[0, 3] + res[1, 3]
-    n_freed, n_tested = res[0, 4] + res[1, 4], res[0, 5] + res[1, 5]
-    n_trusted = n_ok - n_closer if trusted else 0
-    n_removal = 0 if trusted else n_ok - n_closer - n_freed
-    counts = np.array([n_taken, n_taken - n_ok, n_closer, n_trusted, n_removal, n_freed, n_tested], np.int64)
-    return n_touched, counts, log_n
+    t = res[0] + res[1]
+    return t[0], _rule_counts(origin, device, trusted_r, t[1], t[2], t[3], t[4], t[5]), log_n
 
 
 @lru_cache(maxsize=8)
