@@ -8,7 +8,8 @@ library's methods it times ``numpy eq1``: eq. (1) written with whole-array numpy
 maxima of source indices along each direction, diagonals sheared into columns), to show what the numba
 kernel buys. Its results are checked against the library before timing. Session rows: the RGB-D
 frames of eight depth frames of the recorded default session (``runs/default/session``, skipped when
-absent; bench_ingest.session_frames), cycled.
+absent; bench_ingest.session_frames), cycled. ``monroy2018 max_source_ratio=1.5`` rows: eq. (1) with
+the ingest's guard against fills across depth edges, right after the plain eq. (1) rows.
 """
 
 from __future__ import annotations
@@ -30,6 +31,8 @@ from rgbd_envmap.depth import FILL_METHODS, fill_holes  # noqa: E402
 
 H, W = 172, 224
 HOLE_FRACTION = 0.30
+#: the Tango ingest's default ``fill_max_source_ratio``, timed beside the plain eq. (1).
+RATIO = 1.5
 
 
 def iid_mask(rng: np.random.Generator) -> np.ndarray:
@@ -121,6 +124,8 @@ def main() -> None:
         for method in FILL_METHODS:
             rows[f"{method} {mask_name} {hole_pct:.0f}%"] = time_it(lambda m=method: fill_holes(holed, known, m),
                                                                     args.repeats, warmup=3)
+        rows[f"monroy2018 max_source_ratio={RATIO} {mask_name} {hole_pct:.0f}%"] = time_it(
+            lambda: fill_holes(holed, known, max_source_ratio=RATIO), args.repeats, warmup=3)
         rows[f"numpy eq1 {mask_name} {hole_pct:.0f}%"] = time_it(lambda: numpy_eq1(holed, known),
                                                                args.repeats, warmup=3)
     frames = session_frames(args.session)
@@ -131,6 +136,10 @@ def main() -> None:
         for method in FILL_METHODS:
             rows[f"{method} session frames ({unknown:.1f} % unknown)"] = time_it(
                 cycling(frames, lambda f, m=method: fill_holes(f.frame.depth_m, f.frame.known, m)), args.repeats, warmup=3)
+            if method == "monroy2018":
+                rows[f"monroy2018 max_source_ratio={RATIO} session frames"] = time_it(
+                    cycling(frames, lambda f: fill_holes(f.frame.depth_m, f.frame.known, max_source_ratio=RATIO)),
+                    args.repeats, warmup=3)
     print(f"fill_holes on {W}x{H}, numba threads = {numba.get_num_threads()}, cv2 threads = {cv2.getNumThreads()}")
     print_table(rows)
     if args.json:

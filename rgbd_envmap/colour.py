@@ -119,7 +119,7 @@ CCM_METHODS: tuple[str, ...] = ("least_squares", "ridge", "Cheung 2004", "Finlay
 #: The methods fitted from the pairs' normal-equation sums alone (the others need the pairs).
 SUMS_CCM_METHODS: tuple[str, ...] = ("least_squares", "ridge")
 #: ``estimate_ccm``'s default ``ridge`` weight.
-DEFAULT_RIDGE = 1e-2
+DEFAULT_RIDGE = 0.1
 
 #: Default gate on the condition number of the column-equilibrated 3×3 normal matrix (see
 #: :func:`estimate_ccm`). Measured (docs/colour_correction.md): random colours ≈ 10, the 24

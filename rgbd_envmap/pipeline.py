@@ -353,7 +353,7 @@ class Pipeline:
             filled = frame
         else:
             with t.stage("Hole filling RGB-D"):
-                d, k = fill_holes(frame.depth_m, frame.known, method=cfg.ingest.fill_method)
+                d, k = fill_holes(frame.depth_m, frame.known, method=cfg.ingest.fill_method, **cfg.ingest.fill_options())
                 T_cd = colour_registration(depth, colour.T_world_from_colour, cal, cfg.ingest.registration)
                 filled = colour_filled_pixels(frame, d, k, srgb8, T_cd, cal.colour)
         out = self._capture_and_relight(frame, filled, reliable=reliable)

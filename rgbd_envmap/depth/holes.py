@@ -9,7 +9,13 @@ pixels. Three methods sit behind one dispatcher (:data:`FILL_METHODS`):
     *originally* known pixel in each direction; x_r is its Euclidean pixel distance (k steps → k on an
     axis, k·√2 on a diagonal); w_n = max(0, (w − x_r) / w) with w the frame **width** in pixels;
     d = Σ w_n d_n / Σ w_n. A pixel stays unknown when every weight is 0 (no known pixel along any ray,
-    or all of them at x_r ≥ w). Filled pixels never serve as sources. Implemented as two O(H·W)
+    or all of them at x_r ≥ w). Filled pixels never serve as sources. Option ``max_source_ratio``
+    (ours, default None: off): a hole whose sources of non-zero weight span depths with max / min
+    above it stays unknown. Eq. (1) averages across a depth edge as readily as within a surface, and
+    a hole between a foreground and a background (the ToF drops its mixed pixels there; glass and
+    emitters leave larger holes) then gets a depth in the free space between the two: a floating
+    surface that, projected into an environment map, is closer than what lies behind it and wins
+    there (docs/hole_filling.md). Implemented as two O(H·W)
     sweeps that keep the nearest source of every ray (a single-threaded numba kernel, not a per-pixel
     march, so the cost does not grow with hole size), evaluating eq. (1) only at the unknown pixels.
     Sums in float64.
@@ -78,19 +84,24 @@ def _ray(y, x, ys, dx, flat, w, wf, inv_w, scale):  # pragma: no cover - compile
 
 @numba.njit(cache=True, error_model="numpy")
 def _three_rays(y, x, src_v, src_l, src_r, flat, w, wf, inv_w, sqrt2):  # pragma: no cover - compiled
-    """(Σ w_n d_n, Σ w_n) over the vertical ray and the diagonal rays towards columns x − 1 and x + 1
-    of one sweep; ``src_*`` hold the row of each ray's nearest known pixel (the diagonal ones as views
-    indexed by x for this row)."""
+    """(Σ w_n d_n, Σ w_n, min d_n, max d_n) over the vertical ray and the diagonal rays towards
+    columns x − 1 and x + 1 of one sweep, the extremes over the sources of non-zero weight (inf / 0
+    when there is none); ``src_*`` hold the row of each ray's nearest known pixel (the diagonal ones
+    as views indexed by x for this row)."""
     # The directions as int64, not literals: numba compiled _ray once per literal value.
     wv, dv = _ray(y, x, src_v[x], np.int64(0), flat, w, wf, inv_w, 1.0)
     wl, dl = _ray(y, x, src_l[x], np.int64(-1), flat, w, wf, inv_w, sqrt2)
     wr, dr = _ray(y, x, src_r[x], np.int64(1), flat, w, wf, inv_w, sqrt2)
-    return wv * dv + wl * dl + wr * dr, wv + wl + wr
+    lo = min(dv if wv > 0.0 else np.inf, min(dl if wl > 0.0 else np.inf, dr if wr > 0.0 else np.inf))
+    hi = max(dv if wv > 0.0 else 0.0, max(dl if wl > 0.0 else 0.0, dr if wr > 0.0 else 0.0))
+    return wv * dv + wl * dl + wr * dr, wv + wl + wr, lo, hi
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _monroy2018_kernel(depth, known):  # pragma: no cover - compiled
+def _monroy2018_kernel(depth, known, max_ratio):  # pragma: no cover - compiled
     """(H, W) float32 depth, (H, W) bool known → (H, W) float32 filled, (H, W) bool known_after.
+    A hole whose sources of non-zero weight span depths with max / min > ``max_ratio`` stays unknown
+    (``np.inf``: eq. (1) as published).
 
     Only the unknown pixels need eq. (1); the known ones only serve as sources. So the image is swept
     twice, top to bottom (sources above: up, up-left, up-right) and bottom to top (sources below),
@@ -135,6 +146,8 @@ def _monroy2018_kernel(depth, known):  # pragma: no cover - compiled
     flat = depth.reshape(-1)
     num_down = np.empty(n)  # Σ w_n d_n and Σ w_n of the top-to-bottom sweep, per hole
     den_down = np.empty(n)
+    lo_down = np.empty(n)  # and the extremes of its sources' depths
+    hi_down = np.empty(n)
     right = np.empty(n, np.int64)  # each hole's right source (column), −1: none
     src_v = np.empty(w, np.int32)  # row of the nearest known pixel on each ray
     src_a = np.empty(w + h, np.int32)  # diagonals x − y, at index x − y + h − 1
@@ -153,7 +166,8 @@ def _monroy2018_kernel(depth, known):  # pragma: no cover - compiled
             sb = src_b[y:y + w]
             if not down:  # up-left: diagonal x − y; up-right: x + y
                 for j in range(first, last):
-                    num_down[j], den_down[j] = _three_rays(y, holes[j], src_v, sa, sb, flat, w, wf, inv_w, sqrt2)
+                    num_down[j], den_down[j], lo_down[j], hi_down[j] = _three_rays(y, holes[j], src_v, sa, sb, flat, w,
+                                                                                  wf, inv_w, sqrt2)
             else:  # down-left: anti-diagonal x + y; down-right: x − y; then left and right
                 for j in range(last - 1, first - 1, -1):
                     x = holes[j]
@@ -167,7 +181,8 @@ def _monroy2018_kernel(depth, known):  # pragma: no cover - compiled
                 left = -1
                 for j in range(first, last):
                     x = holes[j]
-                    num, den = _three_rays(y, x, src_v, sb, sa, flat, w, wf, inv_w, sqrt2)
+                    num, den, lo, hi = _three_rays(y, x, src_v, sb, sa, flat, w, wf, inv_w, sqrt2)
+                    lo, hi = min(lo, lo_down[j]), max(hi, hi_down[j])
                     if x == 0:
                         left = -1
                     elif j == first or holes[j - 1] != x - 1:
@@ -177,14 +192,18 @@ def _monroy2018_kernel(depth, known):  # pragma: no cover - compiled
                     v = np.float64(flat[np.uint64(row + (left if has else x))])
                     num += wt * (v if has else 0.0)
                     den += wt
+                    lo = min(lo, v if wt > 0.0 else np.inf)
+                    hi = max(hi, v if wt > 0.0 else 0.0)
                     r = right[j]
                     has = r >= 0
                     wt = max(0.0, (wf - float(r - x)) * inv_w) if has else 0.0
                     v = np.float64(flat[np.uint64(row + (r if has else x))])
                     num += wt * (v if has else 0.0)
                     den += wt
+                    lo = min(lo, v if wt > 0.0 else np.inf)
+                    hi = max(hi, v if wt > 0.0 else 0.0)
                     total = den + den_down[j]
-                    if total > 0.0:
+                    if total > 0.0 and hi <= lo * max_ratio:
                         out[y, x] = np.float32((num + num_down[j]) / total)
                         after[y, x] = True
             # The row's known pixels become the nearest sources of their column and diagonals.
@@ -200,9 +219,19 @@ def _monroy2018_kernel(depth, known):  # pragma: no cover - compiled
     return out, after
 
 
-def _fill_monroy2018(depth: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Paper 003 eq. (1); no options (the weight's scale is the frame width, as in the paper)."""
-    return _monroy2018_kernel(depth, known)
+def _fill_monroy2018(depth: np.ndarray, known: np.ndarray, *,
+                     max_source_ratio: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Paper 003 eq. (1) (the weight's scale is the frame width, as in the paper). ``max_source_ratio``
+    (ours; None: the paper's eq. 1): a hole whose sources of non-zero weight span depths with
+    max / min above it stays unknown. Such a hole lies across a depth edge, and the weighted mean
+    of foreground and background puts it in the free space between them (see :data:`FILL_METHODS`)."""
+    ratio = np.inf
+    if max_source_ratio is not None:
+        if isinstance(max_source_ratio, bool) or not isinstance(max_source_ratio, (int, float, np.integer, np.floating)) \
+                or not max_source_ratio >= 1.0:
+            raise RangeError(f"max_source_ratio: expected a number ≥ 1 or None, got {max_source_ratio!r}")
+        ratio = float(max_source_ratio)
+    return _monroy2018_kernel(depth, known, ratio)
 
 
 # --------------------------------------------------------------------------------------------------

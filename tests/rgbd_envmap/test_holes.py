@@ -364,6 +364,105 @@ def test_monroy2018_mirror_symmetry():
 
 
 # ---------------------------------------------------------------------------------------------------
+# monroy2018 with max_source_ratio: holes across a depth edge stay unknown
+# ---------------------------------------------------------------------------------------------------
+
+
+def _reference_source_range(depth: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel, the smallest and largest depth among the eq. (1) sources of non-zero weight
+    (inf / 0 where there is none), marching each of the 8 rays as :func:`_reference_eq1` does."""
+    h, w = depth.shape
+    lo, hi = np.full((h, w), np.inf), np.zeros((h, w))
+    for y in range(h):
+        for x in range(w):
+            for dy, dx in _DIRECTIONS:
+                k = 1
+                while 0 <= y + k * dy < h and 0 <= x + k * dx < w:
+                    if known[y + k * dy, x + k * dx]:
+                        if math.hypot(k * dy, k * dx) < w:
+                            d = float(depth[y + k * dy, x + k * dx])
+                            lo[y, x], hi[y, x] = min(lo[y, x], d), max(hi[y, x], d)
+                        break
+                    k += 1
+    return lo, hi
+
+
+@pytest.mark.parametrize("shape", [(1, 9), (17, 23), (60, 7), (45, 45)])
+@pytest.mark.parametrize("hole_fraction", [0.05, 0.5, 0.95])
+@pytest.mark.parametrize("ratio", [1.0, 1.5, 4.0])
+def test_monroy2018_max_source_ratio_matches_the_reference(shape, hole_fraction, ratio):
+    """Exactly the holes whose sources span more than the ratio stay unknown; the others keep the
+    unguarded eq. (1) value bit for bit."""
+    rng = np.random.default_rng([shape[0], shape[1], int(hole_fraction * 100), int(ratio * 10)])
+    depth, known = _random_case(rng, *shape, hole_fraction)
+    out, after = fill_holes(depth, known, max_source_ratio=ratio)
+    plain, plain_after = fill_holes(depth, known)
+    lo, hi = _reference_source_range(np.nan_to_num(depth), known)
+    expected = plain_after & (known | (hi <= lo * ratio))
+    np.testing.assert_array_equal(after, expected)
+    np.testing.assert_array_equal(out[after].view(np.uint32), plain[after].view(np.uint32))
+    assert np.all(out[~after] == 0.0)
+    if hole_fraction == 0.05 and shape == (45, 45) and ratio == 4.0:
+        assert 0 < (plain_after & ~after).sum() < (~known).sum()  # the case discriminates
+
+
+def test_monroy2018_max_source_ratio_keeps_holes_within_a_surface_and_drops_them_across_an_edge():
+    """A foreground plane at 1 m beside a background at 3 m with a gap of dropped (mixed) pixels
+    between them, and a hole inside each plane: the gap stays unknown, the in-surface holes fill as
+    without the option, and no filled depth lies between the two planes."""
+    h, w = 30, 40
+    depth = np.where(np.arange(w)[None, :] < 20, 1.0, 3.0).astype(np.float32) * np.ones((h, 1), np.float32)
+    depth += np.float32(0.001) * np.arange(h, dtype=np.float32)[:, None]  # a gentle slope
+    known = np.ones((h, w), bool)
+    known[:, 18:22] = False  # the edge's mixed pixels
+    known[5:8, 5:9] = False  # a dark spot on the foreground
+    known[20:24, 30:35] = False  # one on the background
+    plain, plain_after = fill_holes(depth, known)
+    assert plain_after.all() and np.any((plain > 1.1) & (plain < 2.9))  # eq. (1) invents a surface
+    out, after = fill_holes(depth, known, max_source_ratio=1.5)
+    assert not after[:, 18:22].any()
+    assert after[5:8, 5:9].all() and after[20:24, 30:35].all()
+    np.testing.assert_array_equal(out[after], plain[after])
+    assert not np.any((out > 1.1) & (out < 2.9))
+
+
+def test_monroy2018_max_source_ratio_ignores_sources_of_zero_weight():
+    """A 12×3 frame whose middle column is unknown but for a far 10 m pixel at the bottom: at row 2
+    that source is 9 steps away (≥ the width 3, weight 0) and does not count, so the hole fills from
+    its 1 m neighbours; at row 9, 2 steps away, it counts and the hole stays unknown."""
+    depth = np.ones((12, 3), np.float32)
+    known = np.ones((12, 3), bool)
+    known[:, 1] = False
+    known[11, 1], depth[11, 1] = True, 10.0
+    out, after = fill_holes(depth, known, max_source_ratio=1.5)
+    assert after[2, 1] and out[2, 1] == np.float32(1.0)
+    assert not after[9, 1] and not after[10, 1]
+
+
+def test_monroy2018_max_source_ratio_none_and_inf_are_eq1():
+    depth, known = _random_case(np.random.default_rng(5), 23, 31, 0.4)
+    plain = fill_holes(depth, known)
+    for ratio in (None, float("inf")):
+        out, after = fill_holes(depth, known, max_source_ratio=ratio)
+        np.testing.assert_array_equal(after, plain[1])
+        np.testing.assert_array_equal(out.view(np.uint32), plain[0].view(np.uint32))
+
+
+@pytest.mark.parametrize("bad", [0.5, 0.0, -1.0, float("nan"), True, "1.5"])
+def test_monroy2018_max_source_ratio_must_be_at_least_one(bad):
+    depth, known = _random_case(np.random.default_rng(6), 5, 5, 0.3)
+    with pytest.raises(RangeError, match="max_source_ratio"):
+        fill_holes(depth, known, max_source_ratio=bad)
+
+
+@pytest.mark.parametrize("method", ["telea", "ip_basic"])
+def test_max_source_ratio_is_an_option_of_monroy2018_only(method):
+    depth, known = _random_case(np.random.default_rng(7), 5, 5, 0.3)
+    with pytest.raises(InvalidInputError, match="max_source_ratio"):
+        fill_holes(depth, known, method=method, max_source_ratio=1.5)
+
+
+# ---------------------------------------------------------------------------------------------------
 # baselines
 # ---------------------------------------------------------------------------------------------------
 

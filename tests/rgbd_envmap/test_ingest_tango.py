@@ -396,3 +396,54 @@ def test_denoising_in_the_ingest_lowers_the_depth_error_and_keeps_the_rest(sim_f
 def test_denoise_window_must_be_a_positive_integer(bad):
     with pytest.raises(InvalidInputError, match="denoise_half_window"):
         TangoIngestConfig(denoise_half_window=bad)
+
+
+@pytest.fixture(scope="module")
+def inward_packets():
+    """The third depth packet of an inward orbit (the device 1 m out, looking at the origin across the
+    panels and the table) and its simultaneous colour frame: holes at many depth edges."""
+    colour = ColourCameraConfig(width=320, height=240, shot_noise=0.0, read_noise=0.0)
+    sim = Simulator(load_scene("office"), load_trajectory("orbit_inward"), TangoDeviceConfig(colour=colour), seed=2)
+    depth_sp = colour_sp = None
+    n_depth = 0
+    for sp in sim.run(0.45):
+        if isinstance(sp.packet, DepthPacket):
+            depth_sp, n_depth = sp, n_depth + 1
+        elif n_depth == 3 and sp.packet.timestamp_ns == depth_sp.packet.timestamp_ns:
+            colour_sp = sp
+            break
+    assert colour_sp is not None
+    return sim, depth_sp, colour_sp, decode_colour(colour_sp.packet)
+
+
+def test_fills_whose_sources_disagree_are_dropped(inward_packets):
+    """TangoIngestConfig.fill_max_source_ratio (default 1.5): the holes eq. (1) fills from sources on
+    both sides of a depth edge stay unknown; they are the badly filled ones (simulator ground truth),
+    and every other filled pixel keeps its depth and colour. None is the paper's eq. (1)."""
+    sim, depth_sp, colour_sp, srgb8 = inward_packets
+    T = colour_sp.packet.T_world_from_colour
+    plain = ingest_tango(depth_sp.packet, srgb8, T, sim.calibration, TangoIngestConfig(fill_max_source_ratio=None))
+    guarded = ingest_tango(depth_sp.packet, srgb8, T, sim.calibration)
+    assert TangoIngestConfig().fill_max_source_ratio == 1.5
+    new_plain, new_guarded = plain.filled.known & ~plain.frame.known, guarded.filled.known & ~guarded.frame.known
+    dropped = new_plain & ~new_guarded
+    assert not (new_guarded & ~new_plain).any() and dropped.sum() > 100 and new_guarded.sum() > 100
+    kept = guarded.filled.known
+    np.testing.assert_array_equal(guarded.filled.depth_m[kept], plain.filled.depth_m[kept])
+    np.testing.assert_array_equal(guarded.filled.rgb[kept], plain.filled.rgb[kept])
+    true = depth_sp.groundtruth["true_depth_m"]
+    has_truth = true > 0
+    rel = np.abs(plain.filled.depth_m - true) / np.where(has_truth, true, np.inf)
+    assert np.median(rel[dropped & has_truth]) > 3 * np.median(rel[new_guarded & has_truth])
+
+
+@pytest.mark.parametrize("bad", [0.99, 0, -1.0, True, "1.5", float("nan")])
+def test_fill_max_source_ratio_must_be_at_least_one(bad):
+    with pytest.raises(InvalidInputError, match="fill_max_source_ratio"):
+        TangoIngestConfig(fill_max_source_ratio=bad)
+
+
+def test_fill_options_go_to_monroy2018_only():
+    assert TangoIngestConfig().fill_options() == {"max_source_ratio": 1.5}
+    assert TangoIngestConfig(fill_method="telea").fill_options() == {}
+    assert TangoIngestConfig(fill_max_source_ratio=None).fill_options() == {"max_source_ratio": None}
