@@ -74,6 +74,7 @@ class AccuracyTracker:
             "ccm_mse": float(cap.ccm.mse) if cap.ccm is not None else float("nan"),
             "taken": cap.update.taken if cap.update is not None else 0,
             "taken_freed": cap.update.taken_freed if cap.update is not None else 0,
+            "averaged": cap.update.averaged if cap.update is not None else 0,
             "bands": step.bands,
         }
         gains = self._gains.get(step.colour_timestamp_ns)

@@ -455,7 +455,7 @@ def _maps_differ(a: EnvironmentMap, b: EnvironmentMap) -> int:
 def one_frame(sim, frames, r: int, rows: dict) -> EnvironmentMap:
     cap = EnvironmentCapture(sim.scene.virtual_object_position, CaptureConfig())
     for res in frames[:-1]:
-        cap.process(res.frame, res.reliable, res.filled)
+        cap.process(res.frame, res.reliable, res.filled, across_edges=res.across_edges)
     res = frames[-1]
     raw, filled = res.frame, res.filled
     em = cap.em
@@ -559,7 +559,7 @@ def session(sim_factory, seconds: float, rows: dict) -> EnvironmentMap:
     capture_module.update, capture_module._frame_pair_sums = update_both, pairs_both
     try:
         for _, res in ingested_frames(sim, seconds):
-            cap.process(res.frame, res.reliable, res.filled)
+            cap.process(res.frame, res.reliable, res.filled, across_edges=res.across_edges)
     finally:
         capture_module.update, capture_module._frame_pair_sums = new_update, new_sums
     n = len(ms["update new"])
@@ -596,9 +596,9 @@ def capture_inputs(root: Path) -> tuple[np.ndarray, CaptureConfig, list] | None:
     calls = []
     real = EnvironmentCapture.process
 
-    def record(self, raw, reliable, filled, *, timer=None):
-        calls.append((raw, reliable.copy(), filled))
-        return real(self, raw, reliable, filled, timer=timer)
+    def record(self, raw, reliable, filled, *, across_edges=None, timer=None):
+        calls.append((raw, reliable.copy(), filled, across_edges))
+        return real(self, raw, reliable, filled, across_edges=across_edges, timer=timer)
 
     EnvironmentCapture.process = record
     try:
@@ -675,11 +675,11 @@ def recorded_session(root: Path, rows: dict, rounds: int) -> EnvironmentMap | No
 
         capture_module.update = timed_update
         try:
-            for i, (raw, reliable, filled) in enumerate(calls):
+            for i, (raw, reliable, filled, across) in enumerate(calls):
                 for current in ((True, False) if i % 2 else (False, True)):
                     if current:
                         timer.begin("depth")
-                        cap.process(raw, reliable, filled, timer=timer)
+                        cap.process(raw, reliable, filled, across_edges=across, timer=timer)
                     else:
                         previous_process(state, old_update, raw, reliable, filled, cfg, ms)
         finally:

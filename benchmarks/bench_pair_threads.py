@@ -54,8 +54,8 @@ def main() -> int:
     try:
         for _ in range(args.rounds):
             capture = EnvironmentCapture(origin, cfg)
-            for raw, reliable, filled in calls:
-                capture.process(raw, reliable, filled)
+            for raw, reliable, filled, across in calls:
+                capture.process(raw, reliable, filled, across_edges=across)
     finally:
         capture_module._frame_pair_sums = sums
     print(f"{len(ms[1])} pair passes, sums identical on one and two threads")

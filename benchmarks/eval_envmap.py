@@ -84,7 +84,7 @@ def run_orbit(args, w, h) -> list[str]:
     for t_s, res in ingested_frames(sim, args.duration):
         t_end = t_s
         for name, cap in captures.items():
-            step = cap.process(res.frame, res.reliable, res.filled)
+            step = cap.process(res.frame, res.reliable, res.filled, across_edges=res.across_edges)
             key = "reference" if step.reference else ("projected" if step.projected else step.reason.split(" (")[0])
             outcomes[name][key] += 1
     wall = time.perf_counter() - t0
@@ -122,7 +122,7 @@ def run_removal(args, w, h) -> list[str]:
     held = None
     rules = collections.Counter()
     for t_s, res in ingested_frames(sim, 11.0):
-        step = cap.process(res.frame, res.reliable, res.filled)
+        step = cap.process(res.frame, res.reliable, res.filled, across_edges=res.across_edges)
         if step.update is not None and t_s >= 8.0:
             rules.update({"trusted": step.update.taken_trusted, "removal": step.update.taken_removal,
                           "closer": step.update.taken_closer, "empty": step.update.taken_empty,

@@ -43,7 +43,7 @@ TOTAL_CM = 50
 def capture_at(frames, origin, cfg):
     cap = EnvironmentCapture(origin, cfg)
     for res in frames:
-        cap.process(res.frame, res.reliable, res.filled)
+        cap.process(res.frame, res.reliable, res.filled, across_edges=res.across_edges)
     return cap.em
 
 

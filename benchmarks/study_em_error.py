@@ -1064,7 +1064,10 @@ def library_capture(session: Session) -> EnvironmentMap:  # noqa: F821
     """The library's EnvironmentCapture (defaults) over the cached frames, to check the copy."""
     from rgbd_envmap.capture import CaptureConfig, EnvironmentCapture
     from rgbd_envmap.types import RGBDFrame
-    cap = EnvironmentCapture(session.origin, CaptureConfig(height=session.args.em_height, width=2 * session.args.em_height))
+    from rgbd_envmap.envmap import UpdateConfig
+    # colour_average=1: the colour replaced, as in the copy (the library averages since 2026-12-01).
+    cap = EnvironmentCapture(session.origin, CaptureConfig(height=session.args.em_height, width=2 * session.args.em_height,
+                                                           update=UpdateConfig(colour_average=1)))
     for fr in session.frames:
         T = RigidTransform(fr["T_world_from_depth"], "world", "depth")
         raw = RGBDFrame(fr["raw_rgb"], fr["raw_depth"], fr["raw_known"], T, session.intr, fr["timestamp_ns"])

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from rgbd_envmap.checks import check_method, check_positive_int
+from rgbd_envmap.checks import check_array, check_method, check_positive_int
 from rgbd_envmap.colour import (
     CCM_METHODS,
     DEFAULT_MAX_CONDITION,
@@ -52,6 +52,7 @@ from rgbd_envmap.envmap import (
     _frame_pair_sums,
     _frame_pairs,
     _frame_samples,
+    rule_trusted,
     update,
 )
 from rgbd_envmap.timing import StageTimer
@@ -145,11 +146,20 @@ class EnvironmentCapture:
         self.matrix = np.eye(3)
         self.has_reference = False
 
-    def process(self, raw: RGBDFrame, reliable: np.ndarray, filled: RGBDFrame, *, timer: StageTimer | None = None) -> CaptureStep:
+    def process(self, raw: RGBDFrame, reliable: np.ndarray, filled: RGBDFrame, *, across_edges: np.ndarray | None = None,
+                timer: StageTimer | None = None) -> CaptureStep:
         """Process one ingested frame: ``raw`` (before hole filling) with its ``reliable`` mask, and
         ``filled`` (after hole filling), both in the current camera's colour space. ``timer`` records
         the stages "Collect paired samples", "Compute colour correction matrix" (the fit and its MSE)
-        and "Project sample to EM*"."""
+        and "Project sample to EM*".
+
+        ``across_edges``: (H, W) bool, filled pixels whose depth was interpolated across a depth edge
+        (:attr:`rgbd_envmap.ingest.tango.TangoIngestResult.across_edges`). They go into the map only
+        while the device is inside the trusted sphere (``config.update.trusted_radius_m`` of the
+        origin). Elsewhere their depth, somewhere between a foreground and a background, would put
+        them in free space, and seen from the origin they would cover what lies behind. Near the
+        origin the device sees what the origin sees, and the trusted rule relies on exactly that
+        (docs/hole_filling.md). None: every filled pixel goes in (the paper)."""
         cfg = self.config
         t = timer or _NO_TIMER
         ts = raw.timestamp_ns
@@ -157,10 +167,10 @@ class EnvironmentCapture:
             if not filled.known.any():
                 return CaptureStep(ts, False, None, False, "no known pixels for a reference frame", 0, self.matrix.copy(), None)
             self.has_reference = True
-            stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t)
+            stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t, across_edges)
             return CaptureStep(ts, True, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
         if not cfg.colour_correction:
-            stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t)
+            stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t, across_edges)
             return CaptureStep(ts, False, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
         if cfg.ccm_method in SUMS_CCM_METHODS:
             # The fit needs only the pairs' normal-equation sums: accumulated in the pair pass
@@ -184,25 +194,34 @@ class EnvironmentCapture:
         self.matrix = np.array(ccm.matrix, dtype=np.float64)
         if cfg.freeze:
             return CaptureStep(ts, False, ccm, False, "frozen", n_found, self.matrix.copy(), None)
-        stats = self._timed_project(raw, filled, self.matrix, t)
+        stats = self._timed_project(raw, filled, self.matrix, t, across_edges)
         return CaptureStep(ts, False, ccm, True, "", n_found, self.matrix.copy(), stats)
 
-    def projected_mask(self, raw: RGBDFrame, filled: RGBDFrame) -> np.ndarray:
-        """(H, W) bool: the pixels of ``filled`` that go into the map (see ``filled_pixels``)."""
+    def projected_mask(self, raw: RGBDFrame, filled: RGBDFrame, across_edges: np.ndarray | None = None) -> np.ndarray:
+        """(H, W) bool: the pixels of ``filled`` that go into the map (see ``filled_pixels`` and
+        :meth:`process`'s ``across_edges``)."""
         mode = self.config.filled_pixels
         if mode == "all":
-            return filled.known
-        if mode == "none":
-            return raw.known & filled.known
-        consistent = discontinuity_passed(filled.depth_m, filled.known)
-        return filled.known & (raw.known | consistent)
+            mask = filled.known
+        elif mode == "none":
+            mask = raw.known & filled.known
+        else:
+            consistent = discontinuity_passed(filled.depth_m, filled.known)
+            mask = filled.known & (raw.known | consistent)
+        if across_edges is None or mode == "none":
+            return mask
+        device = raw.T_world_from_cam.translation
+        if rule_trusted(float(np.linalg.norm(device - self.em.origin)), float(self.config.update.trusted_radius_m)):
+            return mask
+        return mask & ~check_array(across_edges, "across_edges", shape=mask.shape, dtype="bool")
 
-    def _timed_project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray, timer) -> UpdateStats:
+    def _timed_project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray, timer,
+                       across_edges: np.ndarray | None = None) -> UpdateStats:
         with timer.stage("Project sample to EM*"):
-            return self._project(raw, frame, matrix)
+            return self._project(raw, frame, matrix, across_edges)
 
-    def _project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray) -> UpdateStats:
-        mask = self.projected_mask(raw, frame)
+    def _project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray, across_edges: np.ndarray | None = None) -> UpdateStats:
+        mask = self.projected_mask(raw, frame, across_edges)
         near_edge = None
         if self.config.edge_margin_px is not None:
             plane = discontinuity_passed(frame.depth_m, frame.known)

@@ -333,7 +333,7 @@ class Pipeline:
         return out
 
     def _depth_step(self, depth: DepthPacket, colour: ColourPacket, srgb8: np.ndarray) -> DepthStep:
-        from rgbd_envmap.depth import fill_holes, mark_reliable
+        from rgbd_envmap.depth import mark_reliable
         from rgbd_envmap.depth.denoise import denoise_frame
 
         cfg = self.config
@@ -349,27 +349,30 @@ class Pipeline:
                 frame = denoise_frame(frame, half_window=cfg.ingest.denoise_half_window)
         with t.stage("Mark reliable RGB-D"):
             reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=cfg.ingest.reliability_method)
+        across = None
         if cfg.ingest.fill_method is None:
             filled = frame
         else:
             with t.stage("Hole filling RGB-D"):
-                d, k = fill_holes(frame.depth_m, frame.known, method=cfg.ingest.fill_method, **cfg.ingest.fill_options())
+                d, k, across = cfg.ingest.fill(frame.depth_m, frame.known)
                 T_cd = colour_registration(depth, colour.T_world_from_colour, cal, cfg.ingest.registration)
                 filled = colour_filled_pixels(frame, d, k, srgb8, T_cd, cal.colour)
-        out = self._capture_and_relight(frame, filled, reliable=reliable)
+        out = self._capture_and_relight(frame, filled, reliable=reliable, across_edges=across)
         return replace(out, timestamp_ns=depth.timestamp_ns, colour_timestamp_ns=colour.timestamp_ns)
 
     def _capture_and_relight(self, frame: RGBDFrame, filled: RGBDFrame, *, reliable: np.ndarray | None = None,
-                             depth_m: np.ndarray | None = None, known: np.ndarray | None = None) -> DepthStep:
+                             depth_m: np.ndarray | None = None, known: np.ndarray | None = None,
+                             across_edges: np.ndarray | None = None) -> DepthStep:
         """Reliability (unless given), correction + EM update, SH and shading of one ingested frame.
-        ``depth_m`` / ``known``: the sensor's own measurement when ``frame`` is already a merge of it."""
+        ``depth_m`` / ``known``: the sensor's own measurement when ``frame`` is already a merge of it;
+        ``across_edges``: the hole filling's flags (:class:`rgbd_envmap.ingest.tango.TangoIngestResult`)."""
         from rgbd_envmap.depth import mark_reliable
 
         t = self.timer
         if reliable is None:
             with t.stage("Mark reliable RGB-D"):
                 reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=self.config.ingest.reliability_method)
-        step = self.capture.process(frame, reliable, filled, timer=t)
+        step = self.capture.process(frame, reliable, filled, across_edges=across_edges, timer=t)
         sh_updated = False
         if step.projected or not self.has_lighting:
             if self.capture.em.valid.any():

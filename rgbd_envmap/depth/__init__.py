@@ -6,7 +6,7 @@
 ``depth.fill_holes``).
 """
 
-from rgbd_envmap.depth.holes import FILL_METHODS, fill_holes
+from rgbd_envmap.depth.holes import FILL_METHODS, fill_holes, fill_holes_flagged
 from rgbd_envmap.depth.reliability import RELIABILITY_METHODS, mark_reliable
 
-__all__ = ["fill_holes", "mark_reliable", "FILL_METHODS", "RELIABILITY_METHODS"]
+__all__ = ["fill_holes", "fill_holes_flagged", "mark_reliable", "FILL_METHODS", "RELIABILITY_METHODS"]

@@ -60,7 +60,7 @@ import numpy as np
 from rgbd_envmap.checks import check_array, check_method
 from rgbd_envmap.errors import InvalidInputError, NonFiniteError, RangeError, ShapeError
 
-__all__ = ["FILL_METHODS", "fill_holes"]
+__all__ = ["FILL_METHODS", "fill_holes", "fill_holes_flagged"]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -98,10 +98,11 @@ def _three_rays(y, x, src_v, src_l, src_r, flat, w, wf, inv_w, sqrt2):  # pragma
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _monroy2018_kernel(depth, known, max_ratio):  # pragma: no cover - compiled
-    """(H, W) float32 depth, (H, W) bool known → (H, W) float32 filled, (H, W) bool known_after.
-    A hole whose sources of non-zero weight span depths with max / min > ``max_ratio`` stays unknown
-    (``np.inf``: eq. (1) as published).
+def _monroy2018_kernel(depth, known, max_ratio, drop):  # pragma: no cover - compiled
+    """(H, W) float32 depth, (H, W) bool known → (H, W) float32 filled, (H, W) bool known_after,
+    (H, W) bool across: the holes whose sources of non-zero weight span depths with max / min >
+    ``max_ratio`` (``np.inf``: none). With ``drop`` those stay unknown (0.0, not known_after), else
+    they are filled like any other hole and only flagged.
 
     Only the unknown pixels need eq. (1); the known ones only serve as sources. So the image is swept
     twice, top to bottom (sources above: up, up-left, up-right) and bottom to top (sources below),
@@ -126,6 +127,7 @@ def _monroy2018_kernel(depth, known, max_ratio):  # pragma: no cover - compiled
     sqrt2 = np.sqrt(2.0)
     out = np.empty((h, w), np.float32)
     after = np.empty((h, w), np.bool_)
+    across = np.zeros((h, w), np.bool_)
     for y in range(h):
         for x in range(w):
             k = known[y, x]
@@ -142,7 +144,7 @@ def _monroy2018_kernel(depth, known, max_ratio):  # pragma: no cover - compiled
             n += 0 if known[y, x] else 1
     start[h] = n
     if n == 0:
-        return out, after
+        return out, after, across
     flat = depth.reshape(-1)
     num_down = np.empty(n)  # Σ w_n d_n and Σ w_n of the top-to-bottom sweep, per hole
     den_down = np.empty(n)
@@ -203,9 +205,12 @@ def _monroy2018_kernel(depth, known, max_ratio):  # pragma: no cover - compiled
                     lo = min(lo, v if wt > 0.0 else np.inf)
                     hi = max(hi, v if wt > 0.0 else 0.0)
                     total = den + den_down[j]
-                    if total > 0.0 and hi <= lo * max_ratio:
-                        out[y, x] = np.float32((num + num_down[j]) / total)
-                        after[y, x] = True
+                    spans_edge = hi > lo * max_ratio
+                    if total > 0.0:
+                        across[y, x] = spans_edge
+                        if not (drop and spans_edge):
+                            out[y, x] = np.float32((num + num_down[j]) / total)
+                            after[y, x] = True
             # The row's known pixels become the nearest sources of their column and diagonals.
             # (Views, not offset indices: numba's negative-index check on an offset kept these scalar.)
             yy = np.int32(y)
@@ -216,7 +221,7 @@ def _monroy2018_kernel(depth, known, max_ratio):  # pragma: no cover - compiled
                 sa[x] = yy if kn[x] else sa[x]
             for x in range(w):
                 sb[x] = yy if kn[x] else sb[x]
-    return out, after
+    return out, after, across
 
 
 def _fill_monroy2018(depth: np.ndarray, known: np.ndarray, *,
@@ -225,13 +230,18 @@ def _fill_monroy2018(depth: np.ndarray, known: np.ndarray, *,
     (ours; None: the paper's eq. 1): a hole whose sources of non-zero weight span depths with
     max / min above it stays unknown. Such a hole lies across a depth edge, and the weighted mean
     of foreground and background puts it in the free space between them (see :data:`FILL_METHODS`)."""
-    ratio = np.inf
-    if max_source_ratio is not None:
-        if isinstance(max_source_ratio, bool) or not isinstance(max_source_ratio, (int, float, np.integer, np.floating)) \
-                or not max_source_ratio >= 1.0:
-            raise RangeError(f"max_source_ratio: expected a number ≥ 1 or None, got {max_source_ratio!r}")
-        ratio = float(max_source_ratio)
-    return _monroy2018_kernel(depth, known, ratio)
+    out, after, _ = _monroy2018_kernel(depth, known, _check_ratio(max_source_ratio), True)
+    return out, after
+
+
+def _check_ratio(max_source_ratio: float | None) -> float:
+    """``max_source_ratio`` as the kernel's float (None: inf), or RangeError."""
+    if max_source_ratio is None:
+        return np.inf
+    if isinstance(max_source_ratio, bool) or not isinstance(max_source_ratio, (int, float, np.integer, np.floating)) \
+            or not max_source_ratio >= 1.0:
+        raise RangeError(f"max_source_ratio: expected a number ≥ 1 or None, got {max_source_ratio!r}")
+    return float(max_source_ratio)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -437,6 +447,32 @@ def fill_holes(
     check_method(method, FILL_METHODS)
     if options:
         _check_options(method, options)
+    depth32, known_arr = _checked_inputs(depth_m, known)
+    if depth32.size == 0:
+        return np.zeros(depth32.shape, np.float32), np.zeros(depth32.shape, bool)
+    return _METHODS[method](depth32, known_arr, **options)
+
+
+def fill_holes_flagged(
+    depth_m: np.ndarray, known: np.ndarray, max_source_ratio: float | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. (1) (``fill_holes(depth_m, known)``, same checks and errors) plus a third output: (H, W)
+    bool, True at the filled pixels whose sources of non-zero weight span depths with max / min >
+    ``max_source_ratio`` (None: none), the ones ``max_source_ratio`` would leave unknown (holes
+    across a depth edge). One pass; for a caller that decides later, per frame, whether to use them.
+
+    Raises:
+        RangeError: ``max_source_ratio`` not None and not a number ≥ 1; and as :func:`fill_holes`.
+    """
+    ratio = _check_ratio(max_source_ratio)
+    depth32, known_arr = _checked_inputs(depth_m, known)
+    if depth32.size == 0:
+        return np.zeros(depth32.shape, np.float32), np.zeros(depth32.shape, bool), np.zeros(depth32.shape, bool)
+    return _monroy2018_kernel(depth32, known_arr, ratio, False)
+
+
+def _checked_inputs(depth_m: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fill_holes`' checks: contiguous float32 depth and bool known, or the documented errors."""
     depth_arr = check_array(depth_m, "depth_m", shape=("H", "W"), dtype="float")
     known_arr = np.asarray(known)
     if known_arr.shape != depth_arr.shape:
@@ -446,8 +482,6 @@ def fill_holes(
     with np.errstate(all="ignore"):  # garbage at unknown pixels may overflow float32; it is unused
         depth32 = np.ascontiguousarray(depth_arr, dtype=np.float32)
     known_arr = np.ascontiguousarray(known_arr)
-    if depth32.size == 0:
-        return np.zeros(depth32.shape, np.float32), np.zeros(depth32.shape, bool)
 
     n_known, n_bad, n_nonpositive = _count_known(depth32, known_arr)
     if n_bad:
@@ -459,4 +493,4 @@ def fill_holes(
             f"depth_m: expected depth > 0 m at known pixels, got {n_nonpositive} of {n_known} known pixels "
             f"≤ 0 (min {float(depth32[known_arr].min())})"
         )
-    return _METHODS[method](depth32, known_arr, **options)
+    return depth32, known_arr

@@ -71,12 +71,11 @@ class TangoIngestConfig:
     #: ``fill_method=None`` switches hole filling off.
     reliability_method: str = "noise_model"
     fill_method: str | None = "monroy2018"
-    #: "monroy2018" only (the other methods ignore it): a hole whose eq. (1) sources span depths with
-    #: max / min above this stays unknown instead of getting a depth between a foreground and a
-    #: background (``max_source_ratio`` of :func:`rgbd_envmap.depth.fill_holes`; None: the paper's
-    #: eq. 1). 1.5: map WS-PSNR 27.84 → 27.97 dB at the same coverage on the default session, and
-    #: 17.0 → 23.5 dB on an inward orbit, whose map the floating fills had covered with arcs
-    #: (docs/hole_filling.md).
+    #: "monroy2018" only (the other methods ignore it): holes whose eq. (1) sources span depths with
+    #: max / min above this are flagged (:attr:`TangoIngestResult.across_edges`; None: none). Their
+    #: depth lies between a foreground and a background, and the capture projects them only from
+    #: inside its trusted sphere, where such a depth error barely moves them as seen from the origin
+    #: (:meth:`rgbd_envmap.capture.EnvironmentCapture.process`; docs/hole_filling.md).
     fill_max_source_ratio: float | None = 1.5
     #: edge-aware plane-fit denoising of the measured depth before anything else uses it
     #: (:func:`rgbd_envmap.depth.denoise.denoise_frame`, a departure from the paper): the half-width
@@ -98,9 +97,15 @@ class TangoIngestConfig:
                                                            and self.fill_max_source_ratio >= 1.0):
             raise InvalidInputError(f"fill_max_source_ratio: expected a number ≥ 1 or None, got {self.fill_max_source_ratio!r}")
 
-    def fill_options(self) -> dict:
-        """The options of :func:`rgbd_envmap.depth.fill_holes` for ``fill_method``."""
-        return {"max_source_ratio": self.fill_max_source_ratio} if self.fill_method == "monroy2018" else {}
+    def fill(self, depth_m: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Hole filling with ``fill_method`` (not None): (depth, known_after, across_edges), the last
+        all False unless the method is "monroy2018" and ``fill_max_source_ratio`` is set."""
+        from rgbd_envmap.depth import fill_holes, fill_holes_flagged  # the depth package imports nothing of ingest
+
+        if self.fill_method == "monroy2018" and self.fill_max_source_ratio is not None:
+            return fill_holes_flagged(depth_m, known, self.fill_max_source_ratio)
+        depth, after = fill_holes(depth_m, known, method=self.fill_method)
+        return depth, after, np.zeros(after.shape, bool)
 
 
 @dataclass(frozen=True)
@@ -599,12 +604,15 @@ class TangoIngestResult:
         filled: the frame after hole filling, filled pixels coloured from their estimated 3-D point
             (``frame`` itself when hole filling is off).
         T_colour_from_depth: the registration used.
+        across_edges: (H, W) bool, filled pixels whose eq. (1) sources lie on both sides of a depth
+            edge (``TangoIngestConfig.fill_max_source_ratio``); pass it to the capture.
     """
 
     frame: RGBDFrame
     reliable: np.ndarray
     filled: RGBDFrame
     T_colour_from_depth: RigidTransform
+    across_edges: np.ndarray
 
 
 def ingest_tango(
@@ -619,7 +627,7 @@ def ingest_tango(
     ``srgb8`` is the decoded colour frame nearest in time (:func:`decode_colour`), whose pose is
     ``T_world_from_colour``.
     """
-    from rgbd_envmap.depth import fill_holes, mark_reliable  # the depth package imports nothing of ingest
+    from rgbd_envmap.depth import mark_reliable  # the depth package imports nothing of ingest
     from rgbd_envmap.depth.denoise import denoise_frame
 
     frame, _ = rgbd_frame_from_packets(depth_packet, srgb8, T_world_from_colour, calibration, config)
@@ -628,7 +636,7 @@ def ingest_tango(
     reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=config.reliability_method)
     T_cd = colour_registration(depth_packet, T_world_from_colour, calibration, config.registration)
     if config.fill_method is None:
-        return TangoIngestResult(frame, reliable, frame, T_cd)
-    depth, known = fill_holes(frame.depth_m, frame.known, method=config.fill_method, **config.fill_options())
+        return TangoIngestResult(frame, reliable, frame, T_cd, np.zeros(frame.known.shape, bool))
+    depth, known, across = config.fill(frame.depth_m, frame.known)
     filled = colour_filled_pixels(frame, depth, known, srgb8, T_cd, calibration.colour)
-    return TangoIngestResult(frame, reliable, filled, T_cd)
+    return TangoIngestResult(frame, reliable, filled, T_cd, across & filled.known)

@@ -108,3 +108,31 @@ def test_empty_frame_cannot_be_a_reference(colourful_room):
     empty = RGBDFrame(frame.rgb, frame.depth_m, np.zeros(INTR.shape, bool), frame.T_world_from_cam, INTR, 0)
     step = _step(cap, empty)
     assert not step.reference and not step.projected and not cap.has_reference
+
+
+@pytest.mark.parametrize("distance_m, projected", [(0.5, False), (0.099, True), (0.0, True)])
+def test_fills_across_depth_edges_go_in_only_from_inside_the_trusted_sphere(colourful_room, distance_m, projected):
+    """``across_edges`` pixels are left out of the map unless the device is within
+    ``update.trusted_radius_m`` (0.1 m) of the origin; the other pixels go in either way."""
+    origin = np.array([0.3, 0.0, 0.0])
+    cap = EnvironmentCapture(origin, SMALL)
+    frame = _frame(colourful_room, look_at(origin + [0.0, distance_m, 0.0], [2.0, 0.1, 0.0]))
+    across = np.zeros(INTR.shape, bool)
+    across[20:40, 30:60] = True
+    mask = cap.projected_mask(frame, frame, across)
+    np.testing.assert_array_equal(mask[~across], frame.known[~across])
+    assert mask[across].all() == projected and mask[across].any() == projected
+    np.testing.assert_array_equal(cap.projected_mask(frame, frame, None), frame.known)
+    # Through process: the reference frame projects what the mask says.
+    step = cap.process(frame, frame.known, frame, across_edges=across)
+    ref = EnvironmentCapture(origin, SMALL)
+    ref.process(frame, frame.known, frame)
+    assert step.projected and (cap.em.valid.sum() == ref.em.valid.sum()) == projected
+
+
+def test_across_edges_must_match_the_frame(colourful_room):
+    from rgbd_envmap.errors import RgbdEnvmapError
+    cap = EnvironmentCapture(np.zeros(3), SMALL)
+    frame = _frame(colourful_room, look_at([0.0, 0.5, 0.0], [2.0, 0.1, 0.0]))
+    with pytest.raises(RgbdEnvmapError):
+        cap.process(frame, frame.known, frame, across_edges=np.zeros((3, 3), bool))

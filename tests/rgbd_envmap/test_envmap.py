@@ -17,7 +17,7 @@ from rgbd_envmap.envmap import (
     translate,
     update,
 )
-from rgbd_envmap.errors import InvalidInputError, RangeError, ShapeError, UnknownMethodError
+from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError, ShapeError, UnknownMethodError
 from rgbd_envmap.geometry import equirect_directions, equirect_pixel_index, look_at
 from rgbd_envmap.types import Intrinsics
 from sim.groundtruth import render_envmap
@@ -101,6 +101,55 @@ def test_closer_sample_moves_depth_to_the_mean_and_farther_is_ignored():
     stats = _one(em, (1.0, 0.0, 0.0), colour=(0, 0, 1), device=(0.5, 0.5, 0.5))
     assert stats.taken_closer == 1 and em.depth_m[r, c] == pytest.approx(1.5)
     np.testing.assert_allclose(em.radiance[r, c], [0, 0, 1])
+
+
+def test_same_surface_samples_average_their_colours():
+    """UpdateConfig.colour_average (default 4): samples of the stored surface (within the carving
+    tolerance, 5 % + 2 cm) that take the pixel average its colour, a running mean over up to 4, then
+    each new one weighs 1/4; a farther one is still refused; a nearer surface beyond the tolerance
+    replaces the colour and restarts the mean. colour_average=1 is the paper (replace)."""
+    cfg = UpdateConfig(splat=False)
+    assert cfg.colour_average == 4
+    em, paper = EnvironmentMap(H, W), EnvironmentMap(H, W)
+    r, c = _pixel((2.0, 0.0, 0.0))
+    dev = (0.5, 0.5, 0.5)
+    colours = [(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), (1.0, 1.0, 0.0), (0.0, 1.0, 1.0)]
+    expected = np.zeros(3)
+    for k, (dist, col) in enumerate(zip((2.0, 1.99, 1.98, 1.97, 1.96), colours)):  # each 1 cm nearer: "closer"
+        st = _one(em, (dist, 0.0, 0.0), colour=col, device=dev, config=cfg)
+        _one(paper, (dist, 0.0, 0.0), colour=col, device=dev, config=UpdateConfig(splat=False, colour_average=1))
+        expected = np.asarray(col, float) if k == 0 else expected + (np.asarray(col) - expected) / min(k + 1, 4)
+        np.testing.assert_allclose(em.radiance[r, c], expected, atol=1e-6)
+        np.testing.assert_array_equal(paper.radiance[r, c], np.asarray(col, np.float32))
+        assert st.averaged == (k > 0)
+    np.testing.assert_array_equal(em.depth_m, paper.depth_m)  # depth follows the paper's rule either way
+    before = em.radiance[r, c].copy()
+    assert _one(em, (2.1, 0.0, 0.0), colour=(0.3, 0.3, 0.3), device=dev, config=cfg).taken == 0  # farther: refused
+    np.testing.assert_array_equal(em.radiance[r, c], before)
+    # A new surface 40 cm nearer: beyond the tolerance, the colour is replaced and the mean restarts.
+    st = _one(em, (1.5, 0.0, 0.0), colour=(0.2, 0.4, 0.6), device=dev, config=cfg)
+    assert st.taken_closer == 1 and st.averaged == 0
+    np.testing.assert_allclose(em.radiance[r, c], [0.2, 0.4, 0.6])
+    # (The paper's rule left the depth halfway, 1.73 m.) A sample at that depth now averages with the
+    # new colour only.
+    _one(em, (float(em.depth_m[r, c]) - 0.005, 0.0, 0.0), colour=(0.4, 0.6, 0.8), device=dev, config=cfg)
+    np.testing.assert_allclose(em.radiance[r, c], [0.3, 0.5, 0.7], atol=1e-6)
+
+
+def test_colour_average_two_is_an_even_blend_of_the_last_two_and_freed_pixels_replace():
+    cfg = UpdateConfig(splat=False, colour_average=2)
+    em = EnvironmentMap(H, W)
+    r, c = _pixel((2.0, 0.0, 0.0))
+    for k, dist in enumerate((2.0, 1.99, 1.98, 1.97)):
+        _one(em, (dist, 0.0, 0.0), colour=(float(k), 0.0, 0.0), device=(0.5, 0.5, 0.5), config=cfg)
+    # 0 → 0.5 → (0.5 + 2) / 2 → (1.25 + 3) / 2
+    assert em.radiance[r, c, 0] == pytest.approx(2.125)
+
+
+@pytest.mark.parametrize("bad", [0, -1, 256, 2.5])
+def test_colour_average_must_be_from_1_to_255(bad):
+    with pytest.raises((RangeError, DTypeError)):
+        UpdateConfig(colour_average=bad)
 
 
 def test_within_a_frame_the_closest_sample_wins():
@@ -327,8 +376,13 @@ def _ref_span(x, half, limit):
     return int(np.ceil(x - h - 0.5)), int(np.floor(x + h - 0.5))
 
 
-def _reference_update(em, pts, cols, device, focal, config, fill_only=None):
+def _reference_update(em, pts, cols, device, focal, config, fill_only=None, averaged=None):
+    """The update one sample and one pixel at a time. ``averaged``: (H, W) int array of each
+    pixel's colour-average count (``UpdateConfig.colour_average``), kept by the caller across calls."""
     import math
+
+    if averaged is None:
+        averaged = np.zeros((em.height, em.width), int)
 
     from rgbd_envmap.envmap import _block_coords, _trig_tables
 
@@ -363,7 +417,7 @@ def _reference_update(em, pts, cols, device, focal, config, fill_only=None):
     rows, cols_t = _trig_tables(h, w)
     o = np.asarray(device, float) - em.origin
     dev_r = math.sqrt(o @ o)
-    counts = {"empty": 0, "closer": 0, "trusted": 0, "removal": 0}
+    counts = {"empty": 0, "closer": 0, "trusted": 0, "removal": 0, "averaged": 0}
     for (rr, cc), (r, i) in zbuf.items():
         rule = None
         if not em.valid[rr, cc]:
@@ -381,7 +435,19 @@ def _reference_update(em, pts, cols, device, focal, config, fill_only=None):
                 rule = "removal"
         if rule:
             counts[rule] += 1
-            em.radiance_planes[:, rr, cc] = cols[i]
+            d = float(em.depth_m[rr, cc])
+            n_avg = config.colour_average
+            same = em.valid[rr, cc] and abs(float(r) - d) <= d * config.carve_tol_rel + config.carve_tol_abs_m and n_avg > 1
+            k = averaged[rr, cc]
+            if same:  # a running mean over at most n_avg samples, in float32 as the kernel
+                wgt = np.float32(1.0) / (np.float32(k) + np.float32(2.0))
+                old = em.radiance_planes[:, rr, cc].copy()
+                em.radiance_planes[:, rr, cc] = old + (np.asarray(cols[i], np.float32) - old) * wgt
+                averaged[rr, cc] = min(k + 1, n_avg - 2)
+                counts["averaged"] += 1
+            else:
+                em.radiance_planes[:, rr, cc] = cols[i]
+                averaged[rr, cc] = 0
             em.depth_m[rr, cc] = r if not em.valid[rr, cc] else 0.5 * (em.depth_m[rr, cc] + r)
             em.valid[rr, cc] = True
     return len(zbuf), counts
@@ -395,7 +461,8 @@ def test_update_kernel_equals_the_per_sample_reference(splat):
     h, w = 40, 80
     em_k, em_r = EnvironmentMap(h, w, (0.1, -0.2, 0.3)), EnvironmentMap(h, w, (0.1, -0.2, 0.3))
     cfg = UpdateConfig(splat=splat, max_splat_px=6)
-    fired = np.zeros(5, int)
+    averaged = np.zeros((h, w), int)
+    fired = np.zeros(6, int)
     for frame, device in enumerate(([1.0, 0.5, 0.2], [0.4, -0.1, 0.5], [0.12, -0.18, 0.31])):
         n = 400
         dirs = rng.normal(size=(n, 3))
@@ -407,10 +474,12 @@ def test_update_kernel_equals_the_per_sample_reference(splat):
         cols[rng.random(n) < 0.02, 1] = np.inf
         fill_only = rng.random(n) < 0.3
         stats = update(em_k, pts, cols, np.array(device), FOCAL, cfg, fill_only=fill_only)
-        touched, counts = _reference_update(em_r, pts, cols, np.array(device), FOCAL, cfg, fill_only)
+        touched, counts = _reference_update(em_r, pts, cols, np.array(device), FOCAL, cfg, fill_only, averaged)
         assert stats.touched == touched
-        assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal) == tuple(counts.values())
-        fired += (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.touched - stats.taken)
+        assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal,
+                stats.averaged) == tuple(counts.values())
+        fired += (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged,
+                  stats.touched - stats.taken)
         np.testing.assert_array_equal(em_k.valid, em_r.valid)
         np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
         np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
@@ -450,7 +519,7 @@ def test_update_equal_float32_distances_keep_what_a_sequential_z_test_keeps(spla
             stats = update(em_k, pts, cols, np.array([0.0, 0.0, 1.0]), FOCAL, cfg, fill_only)
             touched, counts = _reference_update(em_r, pts, cols, np.array([0.0, 0.0, 1.0]), FOCAL, cfg, fill_only)
             assert stats.touched == touched
-            assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal) == tuple(counts.values())
+            assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged) == tuple(counts.values())
             np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
             np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
 
@@ -468,6 +537,7 @@ def test_update_kernel_equals_the_reference_on_odd_widths_across_the_seam_and_po
     origin = (0.05, 0.02, -0.1)
     em_k, em_r = EnvironmentMap(h, w, origin), EnvironmentMap(h, w, origin)
     cfg = UpdateConfig(max_splat_px=6)
+    averaged = np.zeros((h, w), int)
     focal = w / 4.0
     frames = [(d, 300) for d in ([0.9, -0.3, 0.2], [0.3, 0.1, -0.4], [0.06, 0.03, -0.08])]
     frames += [([0.9, -0.3, 0.2], 1)] * 150
@@ -480,9 +550,9 @@ def test_update_kernel_equals_the_reference_on_odd_widths_across_the_seam_and_po
         cols = rng.random((n, 3)).astype(np.float32)
         fill_only = rng.random(n) < 0.2
         stats = update(em_k, pts, cols, np.array(device), focal, cfg, fill_only=fill_only)
-        touched, counts = _reference_update(em_r, pts, cols, np.array(device), focal, cfg, fill_only)
+        touched, counts = _reference_update(em_r, pts, cols, np.array(device), focal, cfg, fill_only, averaged)
         assert stats.touched == touched
-        assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal) == tuple(counts.values())
+        assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged) == tuple(counts.values())
         np.testing.assert_array_equal(em_k.valid, em_r.valid)
         np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
         np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)

@@ -455,6 +455,57 @@ def test_monroy2018_max_source_ratio_must_be_at_least_one(bad):
         fill_holes(depth, known, max_source_ratio=bad)
 
 
+@pytest.mark.parametrize("shape", [(1, 9), (17, 23), (45, 45)])
+@pytest.mark.parametrize("ratio", [1.0, 1.5, 4.0, float("inf")])
+def test_fill_holes_flagged_is_eq1_with_the_guard_as_flags(shape, ratio):
+    """Depth and known_after of plain eq. (1) bit for bit; the flags are exactly the holes the guard
+    (``max_source_ratio``) leaves unknown."""
+    rng = np.random.default_rng([shape[0], shape[1], int(min(ratio, 99) * 10)])
+    depth, known = _random_case(rng, *shape, 0.3)
+    out, after, across = holes.fill_holes_flagged(depth, known, ratio)
+    plain, plain_after = fill_holes(depth, known)
+    _, guarded_after = fill_holes(depth, known, max_source_ratio=ratio)
+    np.testing.assert_array_equal(out.view(np.uint32), plain.view(np.uint32))
+    np.testing.assert_array_equal(after, plain_after)
+    np.testing.assert_array_equal(across, plain_after & ~guarded_after)
+    assert across.dtype == bool and not (across & known).any()
+
+
+def test_fill_holes_flagged_edge_and_surface_holes():
+    """The two-plane frame of the test above: the gap between the planes is flagged, the holes
+    inside each plane are not; an empty frame gives empty outputs."""
+    h, w = 30, 40
+    depth = np.where(np.arange(w)[None, :] < 20, 1.0, 3.0).astype(np.float32) * np.ones((h, 1), np.float32)
+    known = np.ones((h, w), bool)
+    known[:, 18:22] = False
+    known[5:8, 5:9] = False
+    _, after, across = depth_pkg_flagged(depth, known, 1.5)
+    assert after.all() and across[:, 18:22].all() and across.sum() == h * 4
+    out, after, across = depth_pkg_flagged(np.zeros((0, 5), np.float32), np.zeros((0, 5), bool), 1.5)
+    assert out.shape == after.shape == across.shape == (0, 5)
+
+
+def depth_pkg_flagged(depth_m, known, ratio):
+    return depth.fill_holes_flagged(depth_m, known, ratio)
+
+
+@pytest.mark.parametrize("bad", [0.5, float("nan"), True, "2"])
+def test_fill_holes_flagged_needs_a_ratio_of_at_least_one(bad):
+    d, k = _random_case(np.random.default_rng(8), 5, 5, 0.3)
+    with pytest.raises(RangeError, match="max_source_ratio"):
+        holes.fill_holes_flagged(d, k, bad)
+
+
+def test_fill_holes_flagged_checks_its_input_as_fill_holes_does():
+    d, k = _random_case(np.random.default_rng(9), 5, 5, 0.3)
+    with pytest.raises(ShapeError):
+        holes.fill_holes_flagged(d, k[:4], 1.5)
+    bad = d.copy()
+    bad[k] = -1.0
+    with pytest.raises(RangeError, match="depth > 0"):
+        holes.fill_holes_flagged(bad, k, 1.5)
+
+
 @pytest.mark.parametrize("method", ["telea", "ip_basic"])
 def test_max_source_ratio_is_an_option_of_monroy2018_only(method):
     depth, known = _random_case(np.random.default_rng(7), 5, 5, 0.3)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from rgbd_envmap.colour import srgb_to_linear
+from rgbd_envmap.depth import fill_holes
 from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError, ShapeError, UnknownMethodError
 from rgbd_envmap.geometry import pixel_rays
 from rgbd_envmap.ingest import tango
@@ -416,25 +417,26 @@ def inward_packets():
     return sim, depth_sp, colour_sp, decode_colour(colour_sp.packet)
 
 
-def test_fills_whose_sources_disagree_are_dropped(inward_packets):
-    """TangoIngestConfig.fill_max_source_ratio (default 1.5): the holes eq. (1) fills from sources on
-    both sides of a depth edge stay unknown; they are the badly filled ones (simulator ground truth),
-    and every other filled pixel keeps its depth and colour. None is the paper's eq. (1)."""
+def test_fills_across_depth_edges_are_flagged(inward_packets):
+    """TangoIngestConfig.fill_max_source_ratio (default 1.5): the filled frame is eq. (1)'s, and
+    ``across_edges`` flags the holes filled from sources on both sides of a depth edge; they are the
+    badly filled ones (simulator ground truth). None flags nothing."""
     sim, depth_sp, colour_sp, srgb8 = inward_packets
     T = colour_sp.packet.T_world_from_colour
     plain = ingest_tango(depth_sp.packet, srgb8, T, sim.calibration, TangoIngestConfig(fill_max_source_ratio=None))
-    guarded = ingest_tango(depth_sp.packet, srgb8, T, sim.calibration)
+    flagged = ingest_tango(depth_sp.packet, srgb8, T, sim.calibration)
     assert TangoIngestConfig().fill_max_source_ratio == 1.5
-    new_plain, new_guarded = plain.filled.known & ~plain.frame.known, guarded.filled.known & ~guarded.frame.known
-    dropped = new_plain & ~new_guarded
-    assert not (new_guarded & ~new_plain).any() and dropped.sum() > 100 and new_guarded.sum() > 100
-    kept = guarded.filled.known
-    np.testing.assert_array_equal(guarded.filled.depth_m[kept], plain.filled.depth_m[kept])
-    np.testing.assert_array_equal(guarded.filled.rgb[kept], plain.filled.rgb[kept])
+    assert flagged.filled == plain.filled and not plain.across_edges.any()
+    across = flagged.across_edges
+    filled_only = flagged.filled.known & ~flagged.frame.known
+    assert not (across & ~filled_only).any() and across.sum() > 100 and (filled_only & ~across).sum() > 100
     true = depth_sp.groundtruth["true_depth_m"]
     has_truth = true > 0
-    rel = np.abs(plain.filled.depth_m - true) / np.where(has_truth, true, np.inf)
-    assert np.median(rel[dropped & has_truth]) > 3 * np.median(rel[new_guarded & has_truth])
+    rel = np.abs(flagged.filled.depth_m - true) / np.where(has_truth, true, np.inf)
+    assert np.median(rel[across & has_truth]) > 3 * np.median(rel[filled_only & ~across & has_truth])
+    # The same flags as fill_holes' own guard, which leaves exactly those holes unknown.
+    _, guarded = fill_holes(flagged.frame.depth_m, flagged.frame.known, max_source_ratio=1.5)
+    np.testing.assert_array_equal(across, filled_only & ~guarded)
 
 
 @pytest.mark.parametrize("bad", [0.99, 0, -1.0, True, "1.5", float("nan")])
@@ -443,7 +445,17 @@ def test_fill_max_source_ratio_must_be_at_least_one(bad):
         TangoIngestConfig(fill_max_source_ratio=bad)
 
 
-def test_fill_options_go_to_monroy2018_only():
-    assert TangoIngestConfig().fill_options() == {"max_source_ratio": 1.5}
-    assert TangoIngestConfig(fill_method="telea").fill_options() == {}
-    assert TangoIngestConfig(fill_max_source_ratio=None).fill_options() == {"max_source_ratio": None}
+@pytest.mark.parametrize("method", ["telea", "ip_basic"])
+def test_other_fill_methods_flag_nothing(inward_packets, method):
+    sim, depth_sp, colour_sp, srgb8 = inward_packets
+    res = ingest_tango(depth_sp.packet, srgb8, colour_sp.packet.T_world_from_colour, sim.calibration,
+                       TangoIngestConfig(fill_method=method))
+    assert res.across_edges.shape == res.frame.known.shape and not res.across_edges.any()
+    assert (res.filled.known & ~res.frame.known).sum() > 100
+
+
+def test_no_hole_filling_flags_nothing(inward_packets):
+    sim, depth_sp, colour_sp, srgb8 = inward_packets
+    res = ingest_tango(depth_sp.packet, srgb8, colour_sp.packet.T_world_from_colour, sim.calibration,
+                       TangoIngestConfig(fill_method=None))
+    assert res.filled is res.frame and not res.across_edges.any()
