@@ -155,6 +155,43 @@ def _add_term(s, zn, qn, xn, yn, zc, xc, yc, t):  # pragma: no cover - compiled
     return (sxx + x * x, sxy + x * y, sx + x, syy + y * y, sy + y, s1 + m, bx + x * qq, by + y * qq, b1 + qq)
 
 
+@numba.njit(cache=True, fastmath={"contract"}, error_model="numpy", inline="always")
+def _load_ring_row(zf, kf, zr, qr, o, q, h, w):  # pragma: no cover - compiled
+    """Image row ``q`` into the ring at offset ``o``: z (−inf where unmeasured) and 1/z (0 there);
+    a row outside the image is all unmeasured."""
+    u = np.uint64
+    if 0 <= q < h:
+        src = u(q) * u(w)
+        for c in range(u(w)):
+            v = zf[src + c]
+            ok = kf[src + c] and np.isfinite(v) and v > 0.0
+            zr[o + c] = v if ok else -np.inf
+            qr[o + c] = 1.0 / v if ok else np.float32(0.0)
+    else:
+        for c in range(u(w)):
+            zr[o + c] = -np.inf
+            qr[o + c] = 0.0
+
+
+@numba.njit(cache=True, fastmath={"contract"}, error_model="numpy", inline="always")
+def _centre_fit(s, zc, fallback, min_inliers):  # pragma: no cover - compiled
+    """The fitted depth at the window's centre from its nine sums ``s`` (the float64 Cramer's rule of
+    :func:`_plane_fit_rows`), or ``fallback``; branch-free (a failed test selects the fallback), so
+    that the pixel loop vectorises."""
+    sxx, sxy, sx, syy, sy, s1, bx, by, b1 = s
+    m00, m01, m02 = np.float64(sxx), np.float64(sxy), np.float64(sx)
+    m11, m12, m22 = np.float64(syy), np.float64(sy), np.float64(s1)
+    v0, v1, v2 = np.float64(bx), np.float64(by), np.float64(b1)
+    c00 = m11 * m22 - m12 * m12
+    c01 = m12 * m02 - m01 * m22
+    c02 = m01 * m12 - m11 * m02
+    det = m00 * c00 + m01 * c01 + m02 * c02
+    scale = m00 * m11 * m22
+    pc = (m00 * (m11 * v2 - m12 * v1) - m01 * (m01 * v2 - m12 * v0) + m02 * (m01 * v1 - m11 * v0)) / det
+    fit = (zc > -np.inf) & (s1 >= min_inliers) & (abs(det) > 1e-9 * scale) & (scale != 0.0) & (pc > 0.0)
+    return np.float32(1.0 / pc) if fit else fallback
+
+
 @numba.njit(cache=True, fastmath={"contract"}, error_model="numpy")
 def _plane_fit_3x3(z, known, zero_unknown, rxp, ryp, tol_rel, min_inliers, zero):  # pragma: no cover
     """The 3×3 window (h = 1) of :func:`_plane_fit_rows` in one pass, bit for bit its result.
@@ -188,19 +225,7 @@ def _plane_fit_3x3(z, known, zero_unknown, rxp, ryp, tol_rel, min_inliers, zero)
     kf = known.reshape(-1)
     of = out.reshape(-1)
     for rr in range(-1, h):
-        nxt = rr + 1  # load row rr + 1 into the ring (outside the image: all unmeasured)
-        o = u(nxt % 3) * wp + u(1)
-        if nxt < h:
-            src = u(nxt) * u(w)
-            for c in range(u(w)):
-                v = zf[src + c]
-                ok = kf[src + c] and np.isfinite(v) and v > 0.0
-                zr[o + c] = v if ok else -np.inf
-                qr[o + c] = 1.0 / v if ok else f4(0.0)
-        else:
-            for c in range(u(w)):
-                zr[o + c] = -np.inf
-                qr[o + c] = 0.0
+        _load_ring_row(zf, kf, zr, qr, u((rr + 1) % 3) * wp + u(1), rr + 1, h, w)
         if rr < 0:
             continue
         r = u(rr)
@@ -228,21 +253,83 @@ def _plane_fit_3x3(z, known, zero_unknown, rxp, ryp, tol_rel, min_inliers, zero)
             s = _add_term(s, zr[o2 + c], qr[o2 + c], xf[p2 + c], yf[p2 + c], zc, xc, yc, t)
             s = _add_term(s, zr[o2 + c1], qr[o2 + c1], xf[p2 + c1], yf[p2 + c1], zc, xc, yc, t)
             s = _add_term(s, zr[o2 + c2], qr[o2 + c2], xf[p2 + c2], yf[p2 + c2], zc, xc, yc, t)
-            sxx, sxy, sx, syy, sy, s1, bx, by, b1 = s
             fallback = zf[row + c] if (kf[row + c] or not zero_unknown) else f4(0.0)
-            # the same float64 Cramer's rule as _plane_fit_rows; branch-free (a failed test selects
-            # the fallback), so that the loop vectorises
-            m00, m01, m02 = np.float64(sxx), np.float64(sxy), np.float64(sx)
-            m11, m12, m22 = np.float64(syy), np.float64(sy), np.float64(s1)
-            v0, v1, v2 = np.float64(bx), np.float64(by), np.float64(b1)
-            c00 = m11 * m22 - m12 * m12
-            c01 = m12 * m02 - m01 * m22
-            c02 = m01 * m12 - m11 * m02
-            det = m00 * c00 + m01 * c01 + m02 * c02
-            scale = m00 * m11 * m22
-            pc = (m00 * (m11 * v2 - m12 * v1) - m01 * (m01 * v2 - m12 * v0) + m02 * (m01 * v1 - m11 * v0)) / det
-            fit = (zc > -np.inf) & (s1 >= min_inliers) & (abs(det) > 1e-9 * scale) & (scale != 0.0) & (pc > 0.0)
-            of[row + c] = np.float32(1.0 / pc) if fit else fallback
+            of[row + c] = _centre_fit(s, zc, fallback, min_inliers)
+    return out
+
+
+@numba.njit(cache=True, fastmath={"contract"}, error_model="numpy")
+def _plane_fit_5x5(z, known, zero_unknown, rxp, ryp, tol_rel, min_inliers, zero):  # pragma: no cover
+    """:func:`_plane_fit_3x3` for the 5×5 window (h = 2), bit for bit :func:`_plane_fit_rows`'
+    result, for the same reasons: the 25 window positions added row by row, left to right, those
+    outside the image or unmeasured as exact zeros. A ring of five rows, the rays padded by two."""
+    h, w = z.shape
+    f4 = np.float32
+    u = np.uint64
+    tol = f4(tol_rel)
+    z0 = f4(zero)
+    wp = u(w + 4)
+    out = np.empty((h, w), np.float32)
+    zr = np.full(5 * (w + 4), -np.inf, np.float32)
+    qr = np.zeros(5 * (w + 4), np.float32)
+    xf = rxp.reshape(-1)
+    yf = ryp.reshape(-1)
+    zf = z.reshape(-1)
+    kf = known.reshape(-1)
+    of = out.reshape(-1)
+    for rr in range(-2, h):
+        _load_ring_row(zf, kf, zr, qr, u((rr + 2) % 5) * wp + u(2), rr + 2, h, w)
+        if rr < 0:
+            continue
+        r = u(rr)
+        o0 = u((rr + 3) % 5) * wp  # ring rows r − 2 … r + 2
+        o1 = u((rr + 4) % 5) * wp
+        o2 = u(rr % 5) * wp
+        o3 = u((rr + 1) % 5) * wp
+        o4 = u((rr + 2) % 5) * wp
+        p0 = r * wp  # padded ray rows r − 2 … r + 2
+        p1 = p0 + wp
+        p2 = p1 + wp
+        p3 = p2 + wp
+        p4 = p3 + wp
+        row = r * u(w)
+        for c in range(u(w)):
+            c1 = c + u(1)
+            c2 = c + u(2)
+            c3 = c + u(3)
+            c4 = c + u(4)
+            zc = zr[o2 + c2]
+            xc = xf[p2 + c2]
+            yc = yf[p2 + c2]
+            t = tol * zc
+            s = (z0, z0, z0, z0, z0, z0, z0, z0, z0)
+            s = _add_term(s, zr[o0 + c], qr[o0 + c], xf[p0 + c], yf[p0 + c], zc, xc, yc, t)
+            s = _add_term(s, zr[o0 + c1], qr[o0 + c1], xf[p0 + c1], yf[p0 + c1], zc, xc, yc, t)
+            s = _add_term(s, zr[o0 + c2], qr[o0 + c2], xf[p0 + c2], yf[p0 + c2], zc, xc, yc, t)
+            s = _add_term(s, zr[o0 + c3], qr[o0 + c3], xf[p0 + c3], yf[p0 + c3], zc, xc, yc, t)
+            s = _add_term(s, zr[o0 + c4], qr[o0 + c4], xf[p0 + c4], yf[p0 + c4], zc, xc, yc, t)
+            s = _add_term(s, zr[o1 + c], qr[o1 + c], xf[p1 + c], yf[p1 + c], zc, xc, yc, t)
+            s = _add_term(s, zr[o1 + c1], qr[o1 + c1], xf[p1 + c1], yf[p1 + c1], zc, xc, yc, t)
+            s = _add_term(s, zr[o1 + c2], qr[o1 + c2], xf[p1 + c2], yf[p1 + c2], zc, xc, yc, t)
+            s = _add_term(s, zr[o1 + c3], qr[o1 + c3], xf[p1 + c3], yf[p1 + c3], zc, xc, yc, t)
+            s = _add_term(s, zr[o1 + c4], qr[o1 + c4], xf[p1 + c4], yf[p1 + c4], zc, xc, yc, t)
+            s = _add_term(s, zr[o2 + c], qr[o2 + c], xf[p2 + c], yf[p2 + c], zc, xc, yc, t)
+            s = _add_term(s, zr[o2 + c1], qr[o2 + c1], xf[p2 + c1], yf[p2 + c1], zc, xc, yc, t)
+            s = _add_term(s, zr[o2 + c2], qr[o2 + c2], xf[p2 + c2], yf[p2 + c2], zc, xc, yc, t)
+            s = _add_term(s, zr[o2 + c3], qr[o2 + c3], xf[p2 + c3], yf[p2 + c3], zc, xc, yc, t)
+            s = _add_term(s, zr[o2 + c4], qr[o2 + c4], xf[p2 + c4], yf[p2 + c4], zc, xc, yc, t)
+            s = _add_term(s, zr[o3 + c], qr[o3 + c], xf[p3 + c], yf[p3 + c], zc, xc, yc, t)
+            s = _add_term(s, zr[o3 + c1], qr[o3 + c1], xf[p3 + c1], yf[p3 + c1], zc, xc, yc, t)
+            s = _add_term(s, zr[o3 + c2], qr[o3 + c2], xf[p3 + c2], yf[p3 + c2], zc, xc, yc, t)
+            s = _add_term(s, zr[o3 + c3], qr[o3 + c3], xf[p3 + c3], yf[p3 + c3], zc, xc, yc, t)
+            s = _add_term(s, zr[o3 + c4], qr[o3 + c4], xf[p3 + c4], yf[p3 + c4], zc, xc, yc, t)
+            s = _add_term(s, zr[o4 + c], qr[o4 + c], xf[p4 + c], yf[p4 + c], zc, xc, yc, t)
+            s = _add_term(s, zr[o4 + c1], qr[o4 + c1], xf[p4 + c1], yf[p4 + c1], zc, xc, yc, t)
+            s = _add_term(s, zr[o4 + c2], qr[o4 + c2], xf[p4 + c2], yf[p4 + c2], zc, xc, yc, t)
+            s = _add_term(s, zr[o4 + c3], qr[o4 + c3], xf[p4 + c3], yf[p4 + c3], zc, xc, yc, t)
+            s = _add_term(s, zr[o4 + c4], qr[o4 + c4], xf[p4 + c4], yf[p4 + c4], zc, xc, yc, t)
+            fallback = zf[row + c] if (kf[row + c] or not zero_unknown) else f4(0.0)
+            of[row + c] = _centre_fit(s, zc, fallback, min_inliers)
     return out
 
 
@@ -257,11 +344,11 @@ def _ray_planes(intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
 
 
 @lru_cache(maxsize=8)
-def _padded_ray_planes(intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_ray_planes` padded by one pixel (zeros; only ever weighted by m = 0) for
-    :func:`_plane_fit_3x3`, cached per camera."""
+def _padded_ray_planes(intrinsics: Intrinsics, pad: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_ray_planes` padded by ``pad`` pixels (zeros; only ever weighted by m = 0) for
+    :func:`_plane_fit_3x3` (1) and :func:`_plane_fit_5x5` (2), cached per camera."""
     rx, ry = _ray_planes(intrinsics)
-    rxp, ryp = np.pad(rx, 1), np.pad(ry, 1)
+    rxp, ryp = np.pad(rx, pad), np.pad(ry, pad)
     rxp.setflags(write=False)
     ryp.setflags(write=False)
     return rxp, ryp
@@ -313,14 +400,15 @@ def _denoise(z: np.ndarray, k: np.ndarray, intrinsics: Intrinsics, half: int, to
              zero_unknown: bool) -> np.ndarray:
     """:func:`denoise_depth` after its checks; ``zero_unknown``: 0 at the pixels not ``k``.
 
-    The 3×3 window of float32 depth (every frame of the pipeline) takes :func:`_plane_fit_3x3`, bit
-    for bit the general kernel's result (tested); any other window or dtype the general kernel, whose
+    The 3×3 and 5×5 windows of float32 depth (every frame of the pipeline) take
+    :func:`_plane_fit_3x3` / :func:`_plane_fit_5x5`, bit for bit the general kernel's result
+    (tested); any other window or dtype the general kernel, whose
     float64 → float32 preparation is kept as it is (a float64 depth that over- or underflows float32
     is a measured pixel there)."""
-    if half == 1 and z.dtype == np.float32:
-        rxp, ryp = _padded_ray_planes(intrinsics)
-        return _plane_fit_3x3(np.ascontiguousarray(z), np.ascontiguousarray(k), zero_unknown, rxp, ryp, tol_rel,
-                              min_in, 0.0)
+    if half in (1, 2) and z.dtype == np.float32:
+        rxp, ryp = _padded_ray_planes(intrinsics, half)
+        kernel = _plane_fit_3x3 if half == 1 else _plane_fit_5x5
+        return kernel(np.ascontiguousarray(z), np.ascontiguousarray(k), zero_unknown, rxp, ryp, tol_rel, min_in, 0.0)
     z64 = z.astype(np.float64)
     with np.errstate(invalid="ignore"):
         ok = k & np.isfinite(z64) & (z64 > 0.0)

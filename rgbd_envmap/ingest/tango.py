@@ -79,10 +79,11 @@ class TangoIngestConfig:
     fill_max_source_ratio: float | None = 1.5
     #: edge-aware plane-fit denoising of the measured depth before anything else uses it
     #: (:func:`rgbd_envmap.depth.denoise.denoise_frame`, a departure from the paper): the half-width
-    #: of its window, or None for the paper's raw depth. 1 (3×3): with carving, 24.73 → 27.59 dB
-    #: map WS-PSNR on the default session for 0.15 ms a frame (its own kernel; 1.0 ms before,
-    #: benchmarks/bench_denoise.py); 2 (5×5) 27.68 dB for 2.3 ms (docs/em_error_study.md).
-    denoise_half_window: int | None = 1
+    #: of its window, or None for the paper's raw depth. 2 (5×5): 28.73 → 29.16 dB map WS-PSNR on
+    #: the default session against 3×3, for 0.30 ms a frame against 0.20 (both have their own
+    #: kernels, benchmarks/bench_denoise.py); 7×7 28.60 dB. Before the map averaged colours the 5×5
+    #: window gained only 0.09 dB over 3×3 (27.68 vs 27.59) and cost 2.3 ms (docs/em_error_study.md).
+    denoise_half_window: int | None = 2
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.confidence_threshold <= 1.0:
