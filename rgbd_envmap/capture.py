@@ -98,8 +98,9 @@ class CaptureConfig:
     #: and removal rules still apply); None: the paper's rules. Near an
     #: object's border, depth noise scatters its samples across its silhouette seen from the origin,
     #: and "closer" keeps every one that lands on the background (a running minimum over noise).
-    #: 2 px: +3.1 dB WS-PSNR on the default session (benchmarks/eval_envmap.py).
-    edge_margin_px: int | None = 2
+    #: 2 px: +3.1 dB WS-PSNR on the default session with raw depth (benchmarks/eval_envmap.py); with
+    #: the 5×5 denoised depth 1 px is best: 29.16 → 29.70 dB (docs/envmap.md, item 4).
+    edge_margin_px: int | None = 1
     freeze: bool = False
 
     def __post_init__(self) -> None:

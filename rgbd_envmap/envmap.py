@@ -328,9 +328,10 @@ class UpdateConfig:
     #: cover each sample's footprint (True) or only the pixel it falls in (the paper's description).
     splat: bool = True
     #: footprint = splat_scale · range / focal, the ToF pixel's size on a surface facing the sensor.
-    #: 1.0 measured best on the default session (1.25 closes a few more oblique gaps but dilates near
-    #: foreground silhouettes more: benchmarks/eval_envmap.py).
-    splat_scale: float = 1.0
+    #: 1.0 measured best with raw depth (1.25 closes a few more oblique gaps but dilates near
+    #: foreground silhouettes more: benchmarks/eval_envmap.py); with the denoised depth of
+    #: 2026-12-01, 0.95: +0.06 dB for 0.04 % less coverage (docs/em_error_study.md, third round).
+    splat_scale: float = 0.95
     #: footprints are clamped to this many rows each side (columns: the same angle, so more pixels
     #: near the poles); guards samples right at the origin.
     max_splat_px: int = 24
@@ -339,17 +340,21 @@ class UpdateConfig:
     #: :func:`update`. +1.4 dB WS-PSNR on the default session (docs/em_error_study.md).
     carve: bool = True
     #: the stored point is free space when all 3×3 measured depths around its projection exceed its
-    #: z-depth by more than ``carve_tol_rel`` · z + ``carve_tol_abs_m`` (about 5 σ of the ToF noise).
-    carve_tol_rel: float = 0.05
+    #: z-depth by more than ``carve_tol_rel`` · z + ``carve_tol_abs_m`` (5 % + 2 cm was about 5 σ
+    #: of the raw ToF noise; the 5×5 denoised depth is within 0.2 %, and 3 % measured better:
+    #: docs/em_error_study.md, third round).
+    carve_tol_rel: float = 0.03
     carve_tol_abs_m: float = 0.02
     #: a pixel taken by a sample of the surface it holds (the sample's distance within the carving
     #: tolerance of the stored one, ``carve_tol_rel`` · d + ``carve_tol_abs_m``: beyond it is free
     #: space, within it the same surface) averages its colour over up to this many such samples (a
     #: running mean, then an exponential one with weight 1 / colour_average for each new sample);
     #: 1: the paper's rule, the colour replaced. Any other takeover replaces the colour and restarts
-    #: the average. 4: 27.97 → 28.73 dB WS-PSNR on the default session (docs/envmap.md, item 6); a
-    #: colour change of a static surface (a lamp dimming) then takes a few samples instead of one.
-    colour_average: int = 4
+    #: the average. 4: 27.97 → 28.73 dB WS-PSNR on the default session (docs/envmap.md, item 6); 8,
+    #: +0.08 dB more with the later defaults (docs/em_error_study.md, third round). A colour change of a static surface
+    #: (a lamp dimming) then takes several samples instead of one (after n samples of the new colour
+    #: the old one keeps a weight of (7/8)^n once the mean is full).
+    colour_average: int = 8
     #: threads (1 or 2; more are used as 2, and 2 as 1 where numba has one thread): the footprints of
     #: each half of the samples, then the map's row bands in two parts of about equal estimated work,
     #: at once (:func:`_update_kernel_2t`). The map, counts and change log are the same bit for bit.

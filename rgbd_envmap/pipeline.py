@@ -346,7 +346,8 @@ class Pipeline:
             frame, _ = rgbd_frame_from_packets(depth, srgb8, colour.T_world_from_colour, cal, cfg.ingest)
         if cfg.ingest.denoise_half_window is not None:
             with t.stage("Denoise depth"):
-                frame = denoise_frame(frame, half_window=cfg.ingest.denoise_half_window)
+                frame = denoise_frame(frame, half_window=cfg.ingest.denoise_half_window,
+                                      tol_rel=cfg.ingest.denoise_tol_rel, min_inliers=cfg.ingest.denoise_min_inliers)
         with t.stage("Mark reliable RGB-D"):
             reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=cfg.ingest.reliability_method)
         across = None

@@ -84,6 +84,11 @@ class TangoIngestConfig:
     #: kernels, benchmarks/bench_denoise.py); 7×7 28.60 dB. Before the map averaged colours the 5×5
     #: window gained only 0.09 dB over 3×3 (27.68 vs 27.59) and cost 2.3 ms (docs/em_error_study.md).
     denoise_half_window: int | None = 2
+    #: the denoiser's inlier tolerance and fewest inliers (``tol_rel``, ``min_inliers`` of
+    #: :func:`rgbd_envmap.depth.denoise.denoise_frame`; the function's defaults are 0.04 and 6).
+    #: 0.05 with the 5×5 window: +0.13 dB map WS-PSNR (docs/em_error_study.md, third round).
+    denoise_tol_rel: float = 0.05
+    denoise_min_inliers: int = 6
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.confidence_threshold <= 1.0:
@@ -93,6 +98,12 @@ class TangoIngestConfig:
                                                      or not isinstance(self.denoise_half_window, int)
                                                      or self.denoise_half_window < 1):
             raise InvalidInputError(f"denoise_half_window: expected a positive integer or None, got {self.denoise_half_window!r}")
+        if not (isinstance(self.denoise_tol_rel, (int, float)) and not isinstance(self.denoise_tol_rel, bool)
+                and 0.0 < self.denoise_tol_rel < 1.0):
+            raise InvalidInputError(f"denoise_tol_rel: expected a fraction in (0, 1), got {self.denoise_tol_rel!r}")
+        if isinstance(self.denoise_min_inliers, bool) or not isinstance(self.denoise_min_inliers, int) \
+                or self.denoise_min_inliers < 3:
+            raise InvalidInputError(f"denoise_min_inliers: expected an integer ≥ 3, got {self.denoise_min_inliers!r}")
         if self.fill_max_source_ratio is not None and not (isinstance(self.fill_max_source_ratio, (int, float))
                                                            and not isinstance(self.fill_max_source_ratio, bool)
                                                            and self.fill_max_source_ratio >= 1.0):
@@ -633,7 +644,8 @@ def ingest_tango(
 
     frame, _ = rgbd_frame_from_packets(depth_packet, srgb8, T_world_from_colour, calibration, config)
     if config.denoise_half_window is not None:
-        frame = denoise_frame(frame, half_window=config.denoise_half_window)
+        frame = denoise_frame(frame, half_window=config.denoise_half_window, tol_rel=config.denoise_tol_rel,
+                              min_inliers=config.denoise_min_inliers)
     reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=config.reliability_method)
     T_cd = colour_registration(depth_packet, T_world_from_colour, calibration, config.registration)
     if config.fill_method is None:

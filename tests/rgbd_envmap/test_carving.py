@@ -63,7 +63,9 @@ def test_seen_through_point_is_freed_and_its_depth_replaced():
 
 
 def test_tolerance_boundary():
-    limit = _stored_z() * 1.05 + 0.02  # farther than this: seen through
+    cfg = UpdateConfig()
+    assert (cfg.carve_tol_rel, cfg.carve_tol_abs_m) == (0.03, 0.02)
+    limit = _stored_z() * 1.03 + 0.02  # farther than this: seen through
     em = _stale_map()
     assert _update(em, np.full((48, 64), limit.min() - 1e-5)).taken == 0
     assert em.depth_m[STALE].max() == 1.0

@@ -104,12 +104,12 @@ def test_closer_sample_moves_depth_to_the_mean_and_farther_is_ignored():
 
 
 def test_same_surface_samples_average_their_colours():
-    """UpdateConfig.colour_average (default 4): samples of the stored surface (within the carving
-    tolerance, 5 % + 2 cm) that take the pixel average its colour, a running mean over up to 4, then
-    each new one weighs 1/4; a farther one is still refused; a nearer surface beyond the tolerance
-    replaces the colour and restarts the mean. colour_average=1 is the paper (replace)."""
-    cfg = UpdateConfig(splat=False)
-    assert cfg.colour_average == 4
+    """UpdateConfig.colour_average (here 4; default 8): samples of the stored surface (within the
+    carving tolerance, 3 % + 2 cm) that take the pixel average its colour, a running mean over up to
+    4, then each new one weighs 1/4; a farther one is still refused; a nearer surface beyond the
+    tolerance replaces the colour and restarts the mean. colour_average=1 is the paper (replace)."""
+    cfg = UpdateConfig(splat=False, colour_average=4)
+    assert UpdateConfig().colour_average == 8
     em, paper = EnvironmentMap(H, W), EnvironmentMap(H, W)
     r, c = _pixel((2.0, 0.0, 0.0))
     dev = (0.5, 0.5, 0.5)
