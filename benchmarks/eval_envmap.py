@@ -61,8 +61,8 @@ def em_scores(em, gt) -> dict:
     return {"coverage": coverage_of(em.valid, gt.valid), "ws_psnr_db": ws_psnr(a, b, covered)}
 
 
-DEFAULT_ROW = ("default: correction (ridge 0.1), splat 1.0, edge margin 2 px, carving, 5×5 denoised depth, colour "
-               "averaged over 4 samples, fills across depth edges left out")
+DEFAULT_ROW = ("default: correction (ridge 0.1), splat 0.95, edge margin 1 px, carving (3 % + 2 cm), 5×5 denoised "
+               "depth, colour averaged over 8 samples, fills across depth edges left out")
 PROJECT_ACROSS_ROW = "fills across depth edges projected (eq. 1 as published)"
 
 
@@ -78,10 +78,11 @@ def run_orbit(args, w, h) -> list[str]:
         "correction off": EnvironmentCapture(origin, replace(base, colour_correction=False)),
         "carving off (the paper's four rules)": EnvironmentCapture(origin, replace(base, update=UpdateConfig(carve=False))),
         "edge samples may take over (paper's rules)": EnvironmentCapture(origin, replace(base, edge_margin_px=None)),
-        "edge margin 1 px": EnvironmentCapture(origin, replace(base, edge_margin_px=1)),
+        "edge margin 2 px": EnvironmentCapture(origin, replace(base, edge_margin_px=2)),
         "edge margin 3 px": EnvironmentCapture(origin, replace(base, edge_margin_px=3)),
         "correction on, one pixel per sample": EnvironmentCapture(origin, replace(base, update=UpdateConfig(splat=False))),
         "correction on, splat scale 1.25": EnvironmentCapture(origin, replace(base, update=UpdateConfig(splat_scale=1.25))),
+        "carving and same-surface tolerance 5 % + 2 cm": EnvironmentCapture(origin, replace(base, update=UpdateConfig(carve_tol_rel=0.05))),
         "correction on, plane-consistent filled pixels only": EnvironmentCapture(origin, replace(base, filled_pixels="plane_consistent")),
         "correction on, plain least-squares matrix (paper)": EnvironmentCapture(origin, replace(base, ccm_method="least_squares")),
     }

@@ -26,6 +26,7 @@ With ``colour_correction=False`` every frame is projected uncorrected (the paper
 
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -52,7 +53,6 @@ from rgbd_envmap.envmap import (
     _frame_pair_sums,
     _frame_pairs,
     _frame_samples,
-    rule_trusted,
     update,
 )
 from rgbd_envmap.timing import StageTimer
@@ -211,10 +211,13 @@ class EnvironmentCapture:
             mask = filled.known & (raw.known | consistent)
         if across_edges is None or mode == "none":
             return mask
-        device = raw.T_world_from_cam.translation
-        if rule_trusted(float(np.linalg.norm(device - self.em.origin)), float(self.config.update.trusted_radius_m)):
+        across = np.asarray(across_edges)
+        if across.shape != mask.shape or across.dtype != np.bool_:  # check_array's message, only when it fails
+            check_array(across, "across_edges", shape=mask.shape, dtype="bool")
+        o = raw.T_world_from_cam.translation - self.em.origin
+        if math.sqrt(o @ o) < self.config.update.trusted_radius_m:  # rule_trusted, without a compiled call
             return mask
-        return mask & ~check_array(across_edges, "across_edges", shape=mask.shape, dtype="bool")
+        return mask & ~across
 
     def _timed_project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray, timer,
                        across_edges: np.ndarray | None = None) -> UpdateStats:

@@ -351,9 +351,9 @@ class UpdateConfig:
     #: running mean, then an exponential one with weight 1 / colour_average for each new sample);
     #: 1: the paper's rule, the colour replaced. Any other takeover replaces the colour and restarts
     #: the average. 4: 27.97 → 28.73 dB WS-PSNR on the default session (docs/envmap.md, item 6); 8,
-    #: +0.08 dB more with the later defaults (docs/em_error_study.md, third round). A colour change of a static surface
-    #: (a lamp dimming) then takes several samples instead of one (after n samples of the new colour
-    #: the old one keeps a weight of (7/8)^n once the mean is full).
+    #: +0.08 dB more with the later defaults (docs/em_error_study.md, third round). A colour change
+    #: of a static surface (a lamp dimming) then takes several samples instead of one (after n
+    #: samples of the new colour the old one keeps a weight of (7/8)^n once the mean is full).
     colour_average: int = 8
     #: threads (1 or 2; more are used as 2, and 2 as 1 where numba has one thread): the footprints of
     #: each half of the samples, then the map's row bands in two parts of about equal estimated work,

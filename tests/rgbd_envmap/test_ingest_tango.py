@@ -459,3 +459,27 @@ def test_no_hole_filling_flags_nothing(inward_packets):
     res = ingest_tango(depth_sp.packet, srgb8, colour_sp.packet.T_world_from_colour, sim.calibration,
                        TangoIngestConfig(fill_method=None))
     assert res.filled is res.frame and not res.across_edges.any()
+
+
+@pytest.mark.parametrize("field, bad", [("denoise_tol_rel", 0.0), ("denoise_tol_rel", 1.0), ("denoise_tol_rel", True),
+                                        ("denoise_tol_rel", "0.05"), ("denoise_min_inliers", 2),
+                                        ("denoise_min_inliers", 6.0), ("denoise_min_inliers", True)])
+def test_denoise_parameters_are_checked(field, bad):
+    with pytest.raises(InvalidInputError, match=field):
+        TangoIngestConfig(**{field: bad})
+
+
+def test_the_ingest_denoises_with_its_configured_tolerance_and_inliers(sim_frame):
+    """denoise_tol_rel / denoise_min_inliers reach denoise_frame (the default 0.05 / 6 is not the
+    function's own 0.04 / 6)."""
+    from rgbd_envmap.depth.denoise import denoise_frame
+
+    sim, depth_sp, colour_sp, srgb8, frame, _ = sim_frame
+    T = colour_sp.packet.T_world_from_colour
+    for tol, min_in in ((0.05, 6), (0.02, 12)):
+        res = ingest_tango(depth_sp.packet, srgb8, T, sim.calibration,
+                           TangoIngestConfig(denoise_tol_rel=tol, denoise_min_inliers=min_in))
+        want = denoise_frame(frame, half_window=2, tol_rel=tol, min_inliers=min_in)
+        np.testing.assert_array_equal(res.frame.depth_m, want.depth_m)
+    assert not np.array_equal(denoise_frame(frame, half_window=2, tol_rel=0.05).depth_m,
+                              denoise_frame(frame, half_window=2, tol_rel=0.04).depth_m)
