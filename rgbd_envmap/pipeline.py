@@ -43,7 +43,7 @@ from rgbd_envmap.colour import decode_nv21
 from rgbd_envmap.envmap import TRANSLATE_METHODS, EnvironmentMap, translate
 from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.ingest.kinect import KinectMergeConfig, KinectMerger, kinect_rgbd_frame
-from rgbd_envmap.ingest.tango import TangoIngestConfig, colour_filled_pixels, colour_registration, rgbd_frame_from_packets
+from rgbd_envmap.ingest.tango import TangoIngestConfig, _colour_filled, registration_matrix, rgbd_frame_from_packets
 from rgbd_envmap.timing import StageTimer
 from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, RGBDFrame
 
@@ -356,8 +356,8 @@ class Pipeline:
         else:
             with t.stage("Hole filling RGB-D"):
                 d, k, across = cfg.ingest.fill(frame.depth_m, frame.known)
-                T_cd = colour_registration(depth, colour.T_world_from_colour, cal, cfg.ingest.registration)
-                filled = colour_filled_pixels(frame, d, k, srgb8, T_cd, cal.colour)
+                m_cd = registration_matrix(depth, colour.T_world_from_colour, cal, cfg.ingest.registration)
+                filled = _colour_filled(frame, d, k, srgb8, m_cd, cal.colour)
         out = self._capture_and_relight(frame, filled, reliable=reliable, across_edges=across)
         return replace(out, timestamp_ns=depth.timestamp_ns, colour_timestamp_ns=colour.timestamp_ns)
 

@@ -483,3 +483,15 @@ def test_the_ingest_denoises_with_its_configured_tolerance_and_inliers(sim_frame
         np.testing.assert_array_equal(res.frame.depth_m, want.depth_m)
     assert not np.array_equal(denoise_frame(frame, half_window=2, tol_rel=0.05).depth_m,
                               denoise_frame(frame, half_window=2, tol_rel=0.04).depth_m)
+
+
+@pytest.mark.parametrize("method", ["poses", "extrinsics"])
+def test_registration_matrix_is_colour_registrations_matrix(sim_frame, method):
+    from rgbd_envmap.ingest.tango import colour_registration, registration_matrix
+
+    sim, depth_sp, colour_sp, *_ = sim_frame
+    T = colour_sp.packet.T_world_from_colour
+    np.testing.assert_array_equal(registration_matrix(depth_sp.packet, T, sim.calibration, method),
+                                  colour_registration(depth_sp.packet, T, sim.calibration, method).matrix)
+    with pytest.raises(UnknownMethodError):
+        registration_matrix(depth_sp.packet, T, sim.calibration, "icp")
