@@ -217,9 +217,11 @@ class EnvironmentMap:
 
     def mark_modified(self) -> None:
         """Say that the arrays were written other than by :func:`update` (the change log, if any,
-        can no longer describe the map's history)."""
+        can no longer describe the map's history, and each pixel's colour counts as one sample again
+        for ``UpdateConfig.colour_average``)."""
         if self._changes is not None:
             self._changes.complete = False
+        self._averaged = None
 
     def copy(self) -> "EnvironmentMap":
         return EnvironmentMap.from_arrays(self.radiance, self.depth_m, self.valid, self.origin)

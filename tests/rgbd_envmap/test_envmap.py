@@ -136,6 +136,20 @@ def test_same_surface_samples_average_their_colours():
     np.testing.assert_allclose(em.radiance[r, c], [0.3, 0.5, 0.7], atol=1e-6)
 
 
+def test_mark_modified_restarts_the_colour_averages():
+    """After the arrays are written from outside (``mark_modified``, as ``translate(out=...)`` does),
+    the next same-surface sample averages with the written colour as with one sample."""
+    cfg = UpdateConfig(splat=False, colour_average=4)
+    em = EnvironmentMap(H, W)
+    r, c = _pixel((2.0, 0.0, 0.0))
+    for dist in (2.0, 1.99, 1.98):  # three samples averaged: the next one would weigh 1/4
+        _one(em, (dist, 0.0, 0.0), colour=(0.0, 0.0, 0.0), device=(0.5, 0.5, 0.5), config=cfg)
+    em.radiance_planes[:, r, c] = 0.5
+    em.mark_modified()
+    _one(em, (float(em.depth_m[r, c]) - 0.005, 0.0, 0.0), colour=(1.0, 1.0, 1.0), device=(0.5, 0.5, 0.5), config=cfg)
+    np.testing.assert_allclose(em.radiance[r, c], 0.75)  # (0.5 + 1) / 2, not 0.5 + 0.5 / 4
+
+
 def test_colour_average_two_is_an_even_blend_of_the_last_two_and_freed_pixels_replace():
     cfg = UpdateConfig(splat=False, colour_average=2)
     em = EnvironmentMap(H, W)
