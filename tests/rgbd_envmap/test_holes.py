@@ -479,14 +479,10 @@ def test_fill_holes_flagged_edge_and_surface_holes():
     known = np.ones((h, w), bool)
     known[:, 18:22] = False
     known[5:8, 5:9] = False
-    _, after, across = depth_pkg_flagged(depth, known, 1.5)
+    _, after, across = depth.fill_holes_flagged(depth, known, 1.5)  # the package's re-export
     assert after.all() and across[:, 18:22].all() and across.sum() == h * 4
-    out, after, across = depth_pkg_flagged(np.zeros((0, 5), np.float32), np.zeros((0, 5), bool), 1.5)
+    out, after, across = depth.fill_holes_flagged(np.zeros((0, 5), np.float32), np.zeros((0, 5), bool), 1.5)
     assert out.shape == after.shape == across.shape == (0, 5)
-
-
-def depth_pkg_flagged(depth_m, known, ratio):
-    return depth.fill_holes_flagged(depth_m, known, ratio)
 
 
 @pytest.mark.parametrize("bad", [0.5, float("nan"), True, "2"])
