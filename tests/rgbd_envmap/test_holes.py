@@ -475,11 +475,11 @@ def test_fill_holes_flagged_edge_and_surface_holes():
     """The two-plane frame of the test above: the gap between the planes is flagged, the holes
     inside each plane are not; an empty frame gives empty outputs."""
     h, w = 30, 40
-    depth = np.where(np.arange(w)[None, :] < 20, 1.0, 3.0).astype(np.float32) * np.ones((h, 1), np.float32)
+    z = np.where(np.arange(w)[None, :] < 20, 1.0, 3.0).astype(np.float32) * np.ones((h, 1), np.float32)
     known = np.ones((h, w), bool)
     known[:, 18:22] = False
     known[5:8, 5:9] = False
-    _, after, across = depth.fill_holes_flagged(depth, known, 1.5)  # the package's re-export
+    _, after, across = depth.fill_holes_flagged(z, known, 1.5)  # the package's re-export
     assert after.all() and across[:, 18:22].all() and across.sum() == h * 4
     out, after, across = depth.fill_holes_flagged(np.zeros((0, 5), np.float32), np.zeros((0, 5), bool), 1.5)
     assert out.shape == after.shape == across.shape == (0, 5)
