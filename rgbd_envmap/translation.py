@@ -67,6 +67,26 @@ compacts memory synchronously), so huge pages for the output would be worse, not
 keys cannot be exact (31 distance bits and a 21-bit index), and a banded z-buffer was rejected
 before (docs/envmap.md).
 
+Fifth round: :func:`_splat_targets` in float32 with int32 targets instead of float64 (16 lanes
+instead of 8; the spans are :func:`_span32`'s, and the large footprints' loop uses the same, so a
+footprint's pixels are the same whichever loop draws it). Cycle counters around the stage, 10th
+percentile of 15 calls each, alternating with the module before the round in one process: true map
+4.28 → 3.65 ms, recorded session's map 3.75 → 3.10 ms; 33 and 54 of the 2 M output pixels change
+(spans whose float64 and float32 ends round to different pixels). The whole call moved by less than
+the machine's noise in that run (medians 32.8 → 31.9 and 31.5 → 30.5 ms under load).
+
+Tried and dropped in the fifth round (same harness; outputs identical where the semantics were kept):
+the output pass in chunks of 256 pixels, keys decoded 16 lanes at a time, the next chunk's sources
+prefetched by a loop of their own and scalar colour gathers (+2 ms: the pass is bound by its ~75 MB
+of memory traffic at the 13-16 GB/s one core gets here, not by its instructions); emitting output
+rows as soon as no later source row can reach them, so that their keys are read back from cache (a
+timing probe with a fixed lag of 32-2000 rows: no change, so the keys' round trip to memory is not
+what the pass waits on); footprints reaching a different distance below and above (v, u), each
+half the largest step to a neighbour on that side, instead of the same both ways (2.4× → 2.2×
+overdraw of the magnified footprints on the true map, 3.4× → 1.7× on the session's, but no faster:
+a magnified footprint's row costs one masked 8-lane update whatever its width; and 0.6 % / 2.3 %
+of the output pixels became holes).
+
 References:
     Monroy, Hudon, Smolic (2018), §6.2.
     Gardner et al. (2017), Learning to Predict Indoor Illumination from a Single Image, §4 (warping).
@@ -90,7 +110,6 @@ from rgbd_envmap.envmap import (
     _col_limits,
     _mn,
     _mx,
-    _span,
     _trig_columns,
 )
 from rgbd_envmap.errors import InvalidInputError
@@ -244,60 +263,66 @@ def _extents_row(depth, valid, r, up, down, pv, pu, sr, su, sd, max_rel_jump, hv
         hu[c] = _mx(half * _mx(_mx(e1, e2), _mx(e3, e4)), half)
 
 
+@numba.njit(cache=True, inline="always")
+def _span32(x, half, limit):  # pragma: no cover - compiled
+    """Pixels k whose centre k + 0.5 lies within ``half`` (≥ 0.5, at most ``limit``) of continuous
+    coordinate x, all float32: :func:`rgbd_envmap.envmap._span` in the precision of the landing
+    positions, as :func:`_splat_targets` computes it 16 lanes at a time."""
+    h = _mn(_mx(half, np.float32(0.5)), limit)
+    return int(np.ceil(x - h - np.float32(0.5))), int(np.floor(x + h - np.float32(0.5)))
+
+
 #: Keys past the map's end in the key buffer: the one-pixel loop updates one of them (by column) for
 #: every pixel that is not a one-pixel footprint, a store nobody reads instead of a branch.
 _N_SPARE = 8
-
-#: :func:`_splat_targets` codes for a pixel that lands nowhere (invalid) or on a large footprint.
-_SKIP, _LARGE = -1.0, -2.0
-
 
 @numba.njit(cache=True, error_model="numpy")
 def _splat_targets(valid, r, pv, pu, pd, sr, hv, hu, height, width, max_splat, min_col_limit, ta, tb, tc, td, t1, keys, is2,
                    isl):  # pragma: no cover - compiled
     """For each pixel of row r, the flat target indices of its footprint when it covers at most 2×2
-    pixels (ta..td, repeats allowed: the one pixel (v, u) falls in when both extents are 0.5), or
-    ta = :data:`_SKIP` (invalid pixel or distance) / :data:`_LARGE` (a larger footprint, left to
-    the caller). No branches, so the row vectorises. Everything stays float64 (whole numbers, exact;
-    AVX2 has no float64 → int64 conversion and the int version ran 2× slower); the spans are those of
-    :func:`_span`, computed from float32 values exactly as per pixel. The column limit of the landing
-    row (a table lookup, which kept the loop scalar) is replaced by its minimum over rows: a
-    footprint it would clip goes to the caller as large, and for the others the two limits agree.
+    pixels (ta..td, int32, repeats allowed: the one pixel (v, u) falls in when both extents are
+    0.5); is2 / isl flag a valid footprint of 2 to 4 pixels / a larger one (left to the caller).
+    No branches, so the row vectorises: the spans are :func:`_span32`'s (float32, 16 lanes), the
+    indices int32. The column limit of the landing row (a table lookup, which kept the loop scalar)
+    is replaced by its minimum over rows: a footprint it would clip goes to the caller as large, and
+    for the others the two limits agree.
 
-    For the caller's scalar loops, also per pixel: t1, the int32 target of a one-pixel footprint or
-    else a spare key's index (n + c % :data:`_N_SPARE`); keys, the pixel's z-buffer key (distance
-    bits, source index); is2 / isl, a valid footprint of 2 to 4 pixels / a magnified one. Computing
-    them here costs 0.3-0.8 ms a map; computing them in the scalar loop cost 2 ms."""
-    fw, fh = np.float64(width), np.float64(height)
-    fn = fw * fh
+    For the caller's scalar loops, also per pixel: t1, the target of a one-pixel footprint or else a
+    spare key's index (n + c % :data:`_N_SPARE`); keys, the pixel's z-buffer key (distance bits,
+    source index). Computing them here costs 0.3-0.8 ms a map; computing them in the scalar loop
+    cost 2 ms."""
+    fw, fh = np.float32(width), np.float32(height)
+    half, one = np.float32(0.5), np.float32(1.0)
+    lim_v = np.float32(max_splat)
+    n = height * width
     base = r * width
     for c in range(width):
         nd = pd[sr, c]
-        v, u = np.float64(pv[sr, c]), np.float64(pu[sr, c])
+        v, u = pv[sr, c], pu[sr, c]
         h_v, h_u = hv[c], hu[c]
-        row = _mn(np.floor(v), fh - 1.0)  # v, u ≥ 0: floor is int()'s truncation
+        row = _mn(np.floor(v), fh - one)  # v, u ≥ 0: floor is int()'s truncation
         col = np.floor(u)
         col = col - fw if col >= fw else col
-        h = _mn(_mx(h_v, 0.5), max_splat)
-        r0, r1 = np.ceil(v - h - 0.5), np.floor(v + h - 0.5)
-        h = _mn(_mx(h_u, 0.5), min_col_limit)
-        c0, c1 = np.ceil(u - h - 0.5), np.floor(u + h - 0.5)
-        single = (h_v == 0.5) & (h_u == 0.5)
-        large = ((r1 - r0 > 1.0) | (c1 - c0 > 1.0) | (_mx(h_u, 0.5) > min_col_limit)) & ~single
+        h = _mn(_mx(h_v, half), lim_v)
+        r0, r1 = np.ceil(v - h - half), np.floor(v + h - half)
+        h = _mn(_mx(h_u, half), min_col_limit)
+        c0, c1 = np.ceil(u - h - half), np.floor(u + h - half)
+        single = (h_v == half) & (h_u == half)
+        large = ((r1 - r0 > one) | (c1 - c0 > one) | (_mx(h_u, half) > min_col_limit)) & ~single
         c0w = c0 + fw if c0 < 0.0 else (c0 - fw if c0 >= fw else c0)
         c1w = c0w + (c1 - c0)
         c1w = c1w - fw if c1w >= fw else c1w
-        ra = row if single else _mx(r0, 0.0)
-        rb = row if single else _mn(r1, fh - 1.0)
-        ca = col if single else c0w
-        cb = col if single else c1w
+        ra = np.int32(row if single else _mx(r0, np.float32(0.0)))
+        rb = np.int32(row if single else _mn(r1, fh - one))
+        ca = np.int32(col if single else c0w)
+        cb = np.int32(col if single else c1w)
         ok = valid[r, c] & (nd > 0.0) & (nd < np.inf)
-        t_a, t_d = ra * fw + ca, rb * fw + cb
-        ta[c] = t_a if (ok & ~large) else (_LARGE if ok else _SKIP)
-        tb[c] = ra * fw + cb
-        tc[c] = rb * fw + ca
+        t_a, t_d = ra * width + ca, rb * width + cb
+        ta[c] = t_a
+        tb[c] = ra * width + cb
+        tc[c] = rb * width + ca
         td[c] = t_d
-        t1[c] = np.int32(t_a if (ok & ~large & (t_a == t_d)) else fn + np.float64(c & (_N_SPARE - 1)))
+        t1[c] = t_a if (ok & ~large & (t_a == t_d)) else np.int32(n + (c & (_N_SPARE - 1)))
         keys[c] = (np.int64(_f32_bits(nd)) << 32) | (base + c)
         is2[c] = ok & ~large & (t_a != t_d)
         isl[c] = ok & large
@@ -373,14 +398,14 @@ def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, 
         for i in range(n2):
             c = l2[i]
             c_pf = l2[_mn(i + _LIST_AHEAD, n2 - 1)]
-            _prefetch(key_flat, int(ta[c_pf]))
-            _prefetch(key_flat, int(td[c_pf]))
+            _prefetch(key_flat, ta[c_pf])
+            _prefetch(key_flat, td[c_pf])
             kk = keys[c]
-            p, q = int(ta[c]), int(tb[c])
+            p, q = ta[c], tb[c]
             key_flat[p] = _mn(key_flat[p], kk)
             key_flat[q] = _mn(key_flat[q], kk)
             p_lo = _mn(p_lo, _mn(p, q))
-            p, q = int(tc[c]), int(td[c])
+            p, q = tc[c], td[c]
             key_flat[p] = _mn(key_flat[p], kk)
             key_flat[q] = _mn(key_flat[q], kk)
             p_hi = _mx(p_hi, _mx(p, q))
@@ -389,12 +414,12 @@ def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, 
         for i in range(nl):
             c = ll[i]
             c_pf = ll[_mn(i + _LIST_AHEAD, nl - 1)]
-            _prefetch(key_flat, int(tb[c_pf]))  # near the footprint's first and last row
-            _prefetch(key_flat, int(tc[c_pf]))
+            _prefetch(key_flat, tb[c_pf])  # near the footprint's first and last row
+            _prefetch(key_flat, tc[c_pf])
             kk = keys[c]
             v, u = pv[sr, c], pu[sr, c]
-            r0, r1 = _span(v, ext_v[c], max_splat)
-            c0, c1 = _span(u, ext_u[c], col_limit[_mn(int(v), height - 1)])
+            r0, r1 = _span32(v, ext_v[c], np.float32(max_splat))
+            c0, c1 = _span32(u, ext_u[c], col_limit[_mn(int(v), height - 1)])
             n_c = _mn(c1 - c0 + 1, width)
             a0 = c0 + width if c0 < 0 else c0  # c0 % width: c0 is within [-width / 2 - 1, width]
             a0 = a0 - width if a0 >= width else a0
@@ -450,7 +475,7 @@ def _translate_buffers(height: int, width: int) -> tuple[np.ndarray, ...]:
     typically viewed from a moving origin many times; fresh 16 MB buffers cost page faults): the
     (H·W + :data:`_N_SPARE`,) int64 key buffer (all :data:`_NO_KEY` between calls but the spare
     keys), three (3, W) rings of reprojected rows, the (W,) v and u extents of one row, the per-row
-    outputs of :func:`_splat_targets` (ta..td float64; t1 int32; keys int64; is2, isl uint8) and
+    outputs of :func:`_splat_targets` (ta..td, t1 int32; keys int64; is2, isl uint8) and
     the two (W,) int32 column lists of :func:`_translate_kernel`."""
     cache = getattr(_warp_buffers, "by_shape", None)
     if cache is None:
@@ -463,7 +488,7 @@ def _translate_buffers(height: int, width: int) -> tuple[np.ndarray, ...]:
         cache[(height, width)] = (np.full(n + _N_SPARE, _NO_KEY, np.int64),
                                   *(np.zeros((3, width), np.float32) for _ in range(3)),
                                   np.zeros(width, np.float32), np.zeros(width, np.float32),
-                                  *(np.zeros(width, np.float64) for _ in range(4)),
+                                  *(np.zeros(width, np.int32) for _ in range(4)),
                                   *(np.zeros(width, np.int32) for _ in range(3)),  # t1, l2, ll
                                   np.zeros(width, np.int64), np.zeros(width, np.uint8), np.zeros(width, np.uint8))
     return cache[(height, width)]
@@ -523,7 +548,7 @@ def translate_map(em: EnvironmentMap, offset: np.ndarray, method: str = "depth",
     if method == "depth":
         h, w = em.height, em.width
         o = (em.origin - new_origin).astype(np.float32)
-        col_limit = _col_limits(h, w, int(max_splat_px))
+        col_limit = _col_limits(h, w, int(max_splat_px)).astype(np.float32)
         key, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td, t1, l2, ll, keys, is2, isl = _translate_buffers(h, w)
         # Contiguous sin / cos columns: strided reads from the (W, 2) tables kept the loop scalar.
         _translate_kernel(em.depth_m, em.valid, em.radiance_planes, *_trig_columns(h, w), o[0], o[1], o[2],

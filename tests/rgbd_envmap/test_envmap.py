@@ -390,6 +390,13 @@ def _ref_span(x, half, limit):
     return int(np.ceil(x - h - 0.5)), int(np.floor(x + h - 0.5))
 
 
+def _ref_span32(x, half, limit):
+    """:func:`_ref_span` in float32, as the translation computes its footprints."""
+    h = np.float32(min(max(half, 0.5), limit))
+    x = np.float32(x)
+    return int(np.ceil(x - h - np.float32(0.5))), int(np.floor(x + h - np.float32(0.5)))
+
+
 def _reference_update(em, pts, cols, device, focal, config, fill_only=None, averaged=None):
     """The update one sample and one pixel at a time. ``averaged``: (H, W) int array of each
     pixel's colour-average count (``UpdateConfig.colour_average``), kept by the caller across calls."""
@@ -816,8 +823,8 @@ def _reference_translate(em, offset, max_splat_px=8, max_rel_jump=0.2):
                 targets = [(row, int(u) % w)]
             else:
                 lim = min(max_splat_px / max(float(rs[row]), 1e-6), w // 2)
-                r0, r1 = _ref_span(v, ext[0], max_splat_px)
-                c0, c1 = _ref_span(u, ext[1], lim)
+                r0, r1 = _ref_span32(v, ext[0], max_splat_px)
+                c0, c1 = _ref_span32(u, ext[1], np.float32(lim))
                 targets = [(rr, cc % w) for rr in range(max(r0, 0), min(r1, h - 1) + 1) for cc in range(c0, c1 + 1)]
             for t in targets:
                 if nd < zbuf[t]:
