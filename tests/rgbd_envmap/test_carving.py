@@ -81,27 +81,39 @@ def _projected(intr: Intrinsics) -> np.ndarray:
     return project_points(X, intr)[0][0]
 
 
+@pytest.mark.parametrize("window", [1, 3, 5])
 @pytest.mark.parametrize("distortion", [Distortion(), Distortion(k1=0.2, k2=-0.05, p1=0.01, p2=-0.02, k3=0.01)])
-def test_the_3x3_neighbourhood_is_where_the_point_projects(distortion):
-    """A single near (or unmeasured) pixel inside the 3×3 around the point's projection keeps the point;
-    the same two pixels farther away do not. Also checks the kernel's projection (with Brown
-    distortion) against geometry.project_points."""
+def test_the_window_is_where_the_point_projects(distortion, window):
+    """A single near (or unmeasured) pixel inside the carving window around the point's projection
+    (``UpdateConfig.carve_window``: by default the pixel itself) keeps the point; the same pixel just
+    outside it does not. Also checks the kernel's projection (with Brown distortion) against
+    geometry.project_points."""
     intr = _intr(distortion)
     u, v = _projected(intr)
     assert min(abs(u % 1 - 0.5), abs(v % 1 - 0.5)) > 0.05  # not on a pixel edge: the test is decisive
     row, col = int(round(v)), int(round(u))
     flat = 49 * 200 + 99
-    for dr, dc, kept in ((0, 0, True), (1, -1, True), (-1, 1, True), (2, 0, False), (0, -2, False)):
+    cfg = UpdateConfig(carve_window=window)
+    h = window // 2
+    for dr, dc in ((0, 0), (h, -h), (-h, h), (0, h), (h + 1, 0), (0, -h - 1), (-h - 1, h + 1)):
+        kept = max(abs(dr), abs(dc)) <= h
         depth = np.full((48, 64), 3.0)
         depth[row + dr, col + dc] = 0.5  # a surface in front of the stored point
         em = _stale_map()
-        _update(em, depth, intr=intr)
+        _update(em, depth, config=cfg, intr=intr)
         assert (em.depth_m.flat[flat] == 1.0) == kept, (dr, dc)
         known = np.ones((48, 64), bool)
         known[row + dr, col + dc] = False  # not measured: no evidence of free space
         em = _stale_map()
-        _update(em, np.full((48, 64), 3.0), known, intr=intr)
+        _update(em, np.full((48, 64), 3.0), known, config=cfg, intr=intr)
         assert (em.depth_m.flat[flat] == 1.0) == kept, (dr, dc)
+
+
+def test_carve_window_must_be_odd_and_small():
+    assert UpdateConfig().carve_window == 1
+    for bad in (0, -1, 2, 4, 17):
+        with pytest.raises((RangeError, InvalidInputError)):
+            UpdateConfig(carve_window=bad)
 
 
 def test_unusable_evidence_frees_nothing():
@@ -158,7 +170,7 @@ def test_row_carving_tests_equal_the_per_pixel_test(distortion):
     h, w = 90, 180
     rows, cols = _trig_tables(h, w)
     origin = np.array([0.1, -0.05, 0.02])
-    depth = rng.uniform(1.2, 3.0, (48, 64))  # 3×3 minima nearer and farther than the stored points
+    depth = rng.uniform(1.2, 3.0, (48, 64))  # nearer and farther than the stored points
     depth[rng.random((48, 64)) < 0.02] = np.nan
     seen = SeenDepth(depth.astype(np.float32), rng.random((48, 64)) > 0.02, _intr(distortion), _pose())
     cam, seen_depth = _seen_arrays(seen, UpdateConfig())
@@ -187,10 +199,8 @@ def test_row_carving_tests_equal_the_per_pixel_test(distortion):
 
 def test_seen_arrays_keep_only_measured_finite_positive_depths():
     """_seen_arrays: the frame's depth where known, finite and > 0 (float32, a float64 value beyond
-    float32's range becoming inf as numpy's cast makes it), then each pixel's 3×3 minimum; the
-    camera rows are T_cam_from_world's."""
-    import cv2
-
+    float32's range becoming inf as numpy's cast makes it), then each pixel's minimum over the
+    carving window (numpy's sliding windows, not cv2's erode); the camera rows are T_cam_from_world's."""
     from rgbd_envmap.envmap import _seen_arrays
 
     rng = np.random.default_rng(5)
@@ -206,14 +216,19 @@ def test_seen_arrays_keep_only_measured_finite_positive_depths():
         as_f32 = depth.astype(np.float32)
     for d in (depth, as_f32):
         with np.errstate(invalid="ignore", over="ignore"):
-            ref = np.where(known & np.isfinite(d) & (d > 0), d, 0).astype(np.float32)
-        ref = cv2.erode(ref, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
-        cam, seen_depth = _seen_arrays(SeenDepth(d, known, _intr(), pose), UpdateConfig())
-        assert seen_depth.dtype == np.float32
-        np.testing.assert_array_equal(seen_depth, ref)
-        np.testing.assert_array_equal(cam[:12], pose.inverse().matrix[:3].reshape(-1))
+            measured = np.where(known & np.isfinite(d) & (d > 0), d, 0).astype(np.float32)
+        for window in (1, 3, 5):
+            ref = measured
+            if window > 1:  # the window's minimum, 0 where it leaves the image
+                ref = np.pad(measured, window // 2)
+                ref = np.lib.stride_tricks.sliding_window_view(ref, (window, window)).min(axis=(-2, -1))
+            cam, seen_depth = _seen_arrays(SeenDepth(d, known, _intr(), pose), UpdateConfig(carve_window=window))
+            assert seen_depth.dtype == np.float32
+            np.testing.assert_array_equal(seen_depth, ref)
+            np.testing.assert_array_equal(cam[:12], pose.inverse().matrix[:3].reshape(-1))
     huge = SeenDepth(np.full((48, 64), 1e300), np.ones((48, 64), bool), _intr(), pose)
-    assert (_seen_arrays(huge, UpdateConfig())[1][1:-1, 1:-1] == np.inf).all()
+    assert (_seen_arrays(huge, UpdateConfig())[1] == np.inf).all()
+    assert (_seen_arrays(huge, UpdateConfig(carve_window=3))[1][1:-1, 1:-1] == np.inf).all()
 
 
 def test_rule_freed_on_its_own():
