@@ -61,7 +61,7 @@ def em_scores(em, gt) -> dict:
     return {"coverage": coverage_of(em.valid, gt.valid), "ws_psnr_db": ws_psnr(a, b, covered)}
 
 
-DEFAULT_ROW = ("default: correction (ridge 0.1), splat 0.95, edge margin 1 px, carving (3 % + 2 cm), 5×5 denoised "
+DEFAULT_ROW = ("default: correction (ridge 0.1), splat 0.95, edge margin 1 px, carving (3 % + 2 cm, one-pixel window), 5×5 denoised "
                "depth, colour averaged over 8 samples, fills across depth edges left out")
 PROJECT_ACROSS_ROW = "fills across depth edges projected (eq. 1 as published)"
 
