@@ -64,7 +64,7 @@ import cv2
 import numba
 import numpy as np
 
-from rgbd_envmap._intrinsics import _PRANGE_ONLY, _bits_f32, _f32_bits, _prefetch
+from rgbd_envmap._intrinsics import _PRANGE_ONLY, _bits_f32, _f32_bits, _min_run8, _prefetch
 from rgbd_envmap.checks import check_array, check_positive_int
 from rgbd_envmap.errors import InvalidInputError, RangeError
 from rgbd_envmap.geometry import brown_distort, pixel_rays
@@ -733,6 +733,9 @@ def _update_bands(
     n_touched, n_taken, n_ok, n_closer, n_freed, n_tested, n_avg = 0, 0, 0, 0, 0, 0, 0
     n_average, same_rel, same_abs = int(avg[0]), avg[1], avg[2]
     avg_top = np.uint8(_mx(n_average - 2, 0))  # the count after which a new sample weighs 1 / n_average
+    inv = np.empty(256, np.float32)  # a new sample's weight after k samples: 1 / (k + 2), looked up
+    for k in range(256):
+        inv[k] = np.float32(1.0) / (np.float32(k) + np.float32(2.0))
     take_p = np.empty(width + 8, np.int64)  # + 8: the compaction stores past the last taken pixel
     freed = np.zeros(width + 8, np.bool_)
     # Carving candidates: refused pixels whose sample lies beyond the stored point by the carving
@@ -771,6 +774,15 @@ def _update_bands(
                 tiles[_u(ta + (cb >> _TILE_SHIFT))] = 1
                 tiles[_u(tb + (a0 >> _TILE_SHIFT))] = 1
                 tiles[_u(tb + (cb >> _TILE_SHIFT))] = 1
+                continue
+            if n_cols <= 8 and a0 + n_cols <= width:
+                # 3 to 8 columns that do not wrap: per row one masked 8-lane min (_min_run8).
+                y0, y1 = a0 >> _TILE_SHIFT, (a0 + n_cols - 1) >> _TILE_SHIFT
+                for rr in range(lo_r, hi_r + 1):
+                    base, tbase = rr * width, rr * n_tiles
+                    _min_run8(zband, base + a0, n_cols, key)
+                    tiles[_u(tbase + y0)] = 1
+                    tiles[_u(tbase + y1)] = 1
                 continue
             if n_cols <= 4:
                 # At most 4 columns (most of the rest): per row four branch-free tests at columns
@@ -952,7 +964,7 @@ def _update_bands(
                 same = ok & (abs(r - d) <= d * same_rel + same_abs) & (n_average > 1)
                 pa = p if n_average > 1 else _u(0)  # one dummy entry when not averaging
                 a = averaged[pa]
-                weight = np.float32(1.0) / (np.float32(a) + np.float32(2.0))
+                weight = inv[a]
                 n_ok += ok
                 n_closer += ok & closer
                 n_freed += free
