@@ -81,7 +81,8 @@ prefetched by a loop of their own and scalar colour gathers (+2 ms: the pass is 
 of memory traffic at the 13-16 GB/s one core gets here, not by its instructions); emitting output
 rows as soon as no later source row can reach them, so that their keys are read back from cache (a
 timing probe with a fixed lag of 32-2000 rows: no change, so the keys' round trip to memory is not
-what the pass waits on); footprints reaching a different distance below and above (v, u), each
+what the pass waits on); eight one-pixel footprints on eight consecutive targets as one vector min
+(the one-pixel stage 4.0 → 6.8 ms: the chunk test's branch mispredicts); footprints reaching a different distance below and above (v, u), each
 half the largest step to a neighbour on that side, instead of the same both ways (2.4× → 2.2×
 overdraw of the magnified footprints on the true map, 3.4× → 1.7× on the session's, but no faster:
 a magnified footprint's row costs one masked 8-lane update whatever its width; and 0.6 % / 2.3 %
