@@ -22,7 +22,8 @@ and the §6.2 translation), the current kernels side by side with the previous o
    run, with the count of pixels it gives differently; a row with ``out=`` (the output map of
    the previous call overwritten) is timed beside the default; ``--only-translation`` times just the
    translations of the recorded session's final map and the true map (``--translation-rounds``
-   repeats each, default ``max(5, repeats // 5)``).
+   repeats each, default ``max(5, repeats // 5)``). One thread unless ``--threads 2``, which adds
+   a row for ``translate(..., threads=2)`` (its default) beside it.
 5. ``--update-baseline PATH`` (alone): every ``update`` call of the recorded session (its inputs
    captured once from a pipeline replay) run by the library and by another version of
    ``rgbd_envmap/envmap.py`` (a copy of the file) on two maps that both record changes, frame by
@@ -797,13 +798,19 @@ def load_translation_module(path: Path):
 
 def translations(maps: dict[str, EnvironmentMap], r: int, rows: dict, baseline=None, previous: bool = True) -> None:
     off = np.array([0.1, 0.0, 0.0])
+    import numba
+
     for name, em in maps.items():
-        fns = {f"translate 2000x1000 by 10 cm, {name} (depth)": lambda em=em: translate(em, off)}
+        fns = {f"translate 2000x1000 by 10 cm, {name} (depth)": lambda em=em: translate(em, off, threads=1)}
+        if numba.get_num_threads() >= 2:  # --threads 2: the default of translate(), beside one thread
+            diff = _maps_differ(translate(em, off, threads=1), translate(em, off, threads=2))
+            print(f"translate {name}: {diff} of {em.height * em.width} pixels differ on two threads")
+            fns[f"  two threads, {name}"] = lambda em=em: translate(em, off, threads=2)
         # A caller translating every frame can pass last frame's result as out= (no fresh 34 MB).
         reused = EnvironmentMap(em.height, em.width)
-        diff = _maps_differ(translate(em, off), translate_map(em, off, out=reused))
+        diff = _maps_differ(translate(em, off), translate_map(em, off, out=reused, threads=1))
         print(f"translate {name}: {diff} of {em.height * em.width} pixels differ with out=")
-        fns[f"  out= (the output map reused), {name}"] = lambda em=em, reused=reused: translate_map(em, off, out=reused)
+        fns[f"  out= (the output map reused), {name}"] = lambda em=em, reused=reused: translate_map(em, off, out=reused, threads=1)
         if baseline is not None:
             diff = _maps_differ(translate(em, off), baseline.translate_map(em, off))
             print(f"translate {name}: {diff} of {em.height * em.width} pixels differ from the baseline module")

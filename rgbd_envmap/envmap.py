@@ -1604,12 +1604,14 @@ def _block_coords(points, start, m, ox, oy, oz, kv, ku, bx, by, bz, bv, bu, br):
 
 
 def translate(em: EnvironmentMap, offset: np.ndarray, method: str = "depth", *, radius_m: float = 2.0,
-              max_splat_px: int = 8, max_rel_jump: float = 0.2, out: EnvironmentMap | None = None) -> EnvironmentMap:
+              max_splat_px: int = 8, max_rel_jump: float = 0.2, out: EnvironmentMap | None = None,
+              threads: int = 2) -> EnvironmentMap:
     """A new map at ``em.origin + offset``; ``em`` is left intact (use the result in place of ``em``
     for a permanent move, or keep both for a temporary view). Paper §6.2; the work is in
     :mod:`rgbd_envmap.translation` (see :func:`~rgbd_envmap.translation.translate_map` for the
-    methods and parameters; ``out``: a map of the same size to overwrite and return instead)."""
+    methods and parameters; ``out``: a map of the same size to overwrite and return instead;
+    ``threads``: 1 or 2, the same result)."""
     from rgbd_envmap.translation import translate_map  # it imports this module
 
     return translate_map(em, offset, method, radius_m=radius_m, max_splat_px=max_splat_px, max_rel_jump=max_rel_jump,
-                         out=out)
+                         out=out, threads=threads)

@@ -38,7 +38,7 @@ import numpy as np
 
 from rgbd_envmap import sh
 from rgbd_envmap.capture import CaptureConfig, CaptureStep, EnvironmentCapture
-from rgbd_envmap.checks import check_array, check_method
+from rgbd_envmap.checks import check_array, check_method, check_positive_int
 from rgbd_envmap.colour import decode_nv21
 from rgbd_envmap.envmap import TRANSLATE_METHODS, EnvironmentMap, translate
 from rgbd_envmap.errors import InvalidInputError
@@ -121,6 +121,8 @@ class PipelineConfig:
     render: RenderConfig = field(default_factory=RenderConfig)
     #: EM translation when the object moves: "depth" (paper §6.2) or "gardner" (sphere baseline).
     translation_method: str = "depth"
+    #: threads of the depth translation (1 or 2, the same map; see translation.translate_map).
+    translation_threads: int = 2
     #: a depth packet pairs with the colour frame nearest in time, if within this lag.
     max_colour_lag_ms: float = 20.0
     #: Kinect path: warp + merge run on every frame (30 Hz); correction, the EM update and SH run on
@@ -132,6 +134,7 @@ class PipelineConfig:
 
     def __post_init__(self) -> None:
         check_method(self.translation_method, TRANSLATE_METHODS, "translation_method")
+        check_positive_int(self.translation_threads, "translation_threads")
         if not self.max_colour_lag_ms >= 0:
             raise InvalidInputError(f"max_colour_lag_ms: expected ≥ 0, got {self.max_colour_lag_ms}")
         if self.kinect_em_every < 1 or self.kinect_em_stride < 1:
@@ -244,7 +247,8 @@ class Pipeline:
         off = check_array(offset, "offset", shape=(3,), finite=True).astype(np.float64)
         if permanent:
             with self.timer.stage("EM translation"):
-                self.capture.em = translate(self.capture.em, self.object_offset + off, self.config.translation_method)
+                self.capture.em = translate(self.capture.em, self.object_offset + off, self.config.translation_method,
+                                            threads=self.config.translation_threads)
             self.object_offset = np.zeros(3)
         else:
             self.object_offset = self.object_offset + off
@@ -390,7 +394,7 @@ class Pipeline:
         with self.timer.stage("EM translation"):
             # Into last frame's view (its arrays already paged in; a fresh 34 MB map can cost 14 ms of page faults).
             self._translated = translate(self.capture.em, self.object_offset, self.config.translation_method,
-                                         out=self._translated)
+                                         out=self._translated, threads=self.config.translation_threads)
             return self._translated
 
     def _relight(self) -> None:

@@ -101,8 +101,8 @@ import threading
 import numba
 import numpy as np
 
-from rgbd_envmap._intrinsics import _bits_f32, _f32_bits, _min_run8, _prefetch, _store_nt
-from rgbd_envmap.checks import check_array, check_method
+from rgbd_envmap._intrinsics import _PRANGE_ONLY, _bits_f32, _f32_bits, _min_run8, _prefetch, _store_nt
+from rgbd_envmap.checks import check_array, check_method, check_positive_int
 from rgbd_envmap.envmap import (
     _ATAN_POLY,
     TRANSLATE_METHODS,
@@ -111,6 +111,7 @@ from rgbd_envmap.envmap import (
     _col_limits,
     _mn,
     _mx,
+    _threads,
     _trig_columns,
 )
 from rgbd_envmap.errors import InvalidInputError
@@ -330,47 +331,41 @@ def _splat_targets(valid, r, pv, pu, pd, sr, hv, hu, height, width, max_splat, m
 
 
 @numba.njit(cache=True)
-def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, ox, oy, oz, max_rel_jump, max_splat,
-                      col_limit, out_planes, out_depth, out_valid, key, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td, t1, l2, ll,
-                      keys, is2, isl):  # pragma: no cover - compiled
-    """Forward warp of every valid pixel (see :func:`translate`), streaming over source rows.
+def _busy_rows(valid):  # pragma: no cover - compiled
+    """Per row, how many pixels are valid (rows with none are not reprojected: most of a map still
+    being captured)."""
+    height, width = valid.shape
+    busy = np.zeros(height, np.int64)
+    for t in range(height):
+        k = 0
+        for c in range(width):
+            k += valid[t, c]
+        busy[t] = k
+    return busy
 
-    Row t + 1 is reprojected into a 3-row ring before row t is splatted, so the (v, u) of a
-    pixel's 4-neighbours are at hand without full-map planes. The z-buffer is one int64 key per
-    target pixel, float32 distance bits above the source pixel's index, so ``min`` keeps the
-    closest sample and, on equal distances, the first in raster order: what a sequential
-    "closer wins" gives, but branch-free and independent of the visiting order (so one-pixel,
-    2×2 and magnified footprints are updated by separate loops). A final pass writes every output
-    pixel once from its key and resets the keys. ``key``: (H·W + :data:`_N_SPARE`,) int64, the
-    first H·W :data:`_NO_KEY` between calls. Key updates prefetch the target of the pixel
-    :data:`_SCATTER_AHEAD` columns (or :data:`_LIST_AHEAD` list entries) on, the final pass the
-    source colours of the pixel :data:`_GATHER_AHEAD` on (prefetches never fault and change no
-    result)."""
+
+@numba.njit(cache=True)
+def _warp_rows(lo, hi, busy, depth, valid, row_sin, row_cos, col_sin, col_cos, ox, oy, oz, max_rel_jump, max_splat,
+               col_limit, key_flat, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td, t1, l2, ll, keys, is2, isl):  # pragma: no cover - compiled
+    """The key updates of source rows ``lo`` to ``hi`` − 1 into ``key_flat`` (see
+    :func:`_translate_kernel`); returns the lowest and highest flat target index reached (n, −1
+    for none). Row t + 1 is reprojected into a 3-row ring before row t is splatted (row lo − 1 too),
+    so the (v, u) of a pixel's 4-neighbours are at hand without full-map planes."""
     height, width = depth.shape
     n = height * width
-    key_flat = key  # n keys, then the spare ones
     min_col_limit = col_limit.min()
     kv = np.float32(height / math.pi)
     ku = np.float32(width / (2.0 * math.pi))
     p_lo, p_hi = n, -1  # the flat target indices reached
-    # Rows with no valid pixel (most of a map still being captured) are not reprojected.
-    busy = np.zeros(height, np.bool_)
-    for t in range(height):
-        hit = False
-        for c in range(width):
-            hit |= valid[t, c]
-        busy[t] = hit
-    for t in range(height + 1):
-        if t < height and busy[t]:
+    for t in range(_mx(lo - 1, 0), _mn(hi + 1, height + 1)):
+        if t < height and busy[t] > 0:
             # Whole rows: skipping runs of empty 64-column chunks instead (bounds read from memory)
             # made these loops 2-8× slower although they stayed vectorised.
             slot = t % 3
             _reproject_row(depth, t, row_sin[t], row_cos[t], col_sin, col_cos, ox, oy, oz, kv, ku,
                            pv[slot], pu[slot], pd[slot])
-        if t == 0:
-            continue
         r = t - 1
-        if not busy[r]:
+        if r < lo or busy[r] == 0:
             continue
         up = r - 1 if r > 0 else r
         down = r + 1 if r + 1 < height else r
@@ -437,21 +432,35 @@ def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, 
                     _min_run8(key_flat, q + j0, m - j0, kk)
                 for cc in range(rr * width, rr * width + b1):
                     key_flat[cc] = _mn(key_flat[cc], kk)
-    # Gather: every output pixel written once, in order, the keys reset on the way (a key holds the
-    # flat source index). Outside the span of target pixels reached the keys are not read.
+    return p_lo, p_hi
+
+
+@numba.njit(cache=True)
+def _gather(p0, p1, key_a, key_b, two, planes, out_planes, out_depth, out_valid, p_lo, p_hi):  # pragma: no cover - compiled
+    """The output pass over flat pixels ``p0`` to ``p1`` − 1: every output pixel written once, in
+    order, from its key (the minimum of ``key_a`` and, with ``two``, ``key_b``), the keys reset on the
+    way (a key holds the flat source index). Outside [p_lo, p_hi], the span of target pixels
+    reached, the keys are not read."""
+    n = out_depth.size
     src_flat = planes.reshape(3, n)
     dst0, dst1, dst2 = out_planes[0].reshape(n), out_planes[1].reshape(n), out_planes[2].reshape(n)
     depth_flat = out_depth.reshape(n)
     valid_flat = out_valid.reshape(n)
     zero = np.float32(0.0)
-    for p in range(n):
+    for p in range(p0, p1):
         if p + _GATHER_AHEAD <= p_hi:
-            k_ahead = key_flat[p + _GATHER_AHEAD]
+            k_ahead = _mn(key_a[p + _GATHER_AHEAD], key_b[p + _GATHER_AHEAD]) if two else key_a[p + _GATHER_AHEAD]
             s_ahead = k_ahead & 0xFFFFFFFF if k_ahead != _NO_KEY else 0
             _prefetch(src_flat[0], s_ahead)
             _prefetch(src_flat[1], s_ahead)
             _prefetch(src_flat[2], s_ahead)
-        kk = key_flat[p] if p_lo <= p <= p_hi else _NO_KEY
+        inside = p_lo <= p <= p_hi
+        kk = key_a[p] if inside else _NO_KEY
+        if two and inside:
+            kb = key_b[p]
+            if kb != _NO_KEY:
+                key_b[p] = _NO_KEY
+                kk = _mn(kk, kb)
         if kk == _NO_KEY:
             _store_nt(depth_flat, p, zero)
             valid_flat[p] = False
@@ -459,7 +468,7 @@ def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, 
             _store_nt(dst1, p, zero)
             _store_nt(dst2, p, zero)
         else:
-            key_flat[p] = _NO_KEY
+            key_a[p] = _NO_KEY
             s = kk & 0xFFFFFFFF
             _store_nt(depth_flat, p, _bits_f32(np.int32(kk >> 32)))
             valid_flat[p] = True
@@ -468,31 +477,87 @@ def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, 
             _store_nt(dst2, p, src_flat[2, s])
 
 
+@numba.njit(cache=True)
+def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, ox, oy, oz, max_rel_jump, max_splat,
+                      col_limit, out_planes, out_depth, out_valid, key, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td, t1, l2, ll,
+                      keys, is2, isl):  # pragma: no cover - compiled
+    """Forward warp of every valid pixel (see :func:`translate`), streaming over source rows
+    (:func:`_warp_rows`), then the output pass (:func:`_gather`).
+
+    The z-buffer is one int64 key per target pixel, float32 distance bits above the source pixel's
+    index, so ``min`` keeps the closest sample and, on equal distances, the first in raster order:
+    what a sequential "closer wins" gives, but branch-free and independent of the visiting order
+    (so one-pixel, 2×2 and magnified footprints are updated by separate loops, and two threads may
+    update key buffers of their own). The output pass writes every output pixel once from its key
+    and resets the keys. ``key``: (H·W + :data:`_N_SPARE`,) int64, the first H·W :data:`_NO_KEY`
+    between calls. Key updates prefetch the target of the pixel :data:`_SCATTER_AHEAD` columns (or
+    :data:`_LIST_AHEAD` list entries) on, the output pass the source colours of the pixel
+    :data:`_GATHER_AHEAD` on (prefetches never fault and change no result)."""
+    height, width = depth.shape
+    busy = _busy_rows(valid)
+    p_lo, p_hi = _warp_rows(0, height, busy, depth, valid, row_sin, row_cos, col_sin, col_cos, ox, oy, oz, max_rel_jump,
+                            max_splat, col_limit, key, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td, t1, l2, ll, keys, is2, isl)
+    _gather(0, height * width, key, key, False, planes, out_planes, out_depth, out_valid, p_lo, p_hi)
+
+
+@numba.njit(cache=True, parallel=_PRANGE_ONLY)
+def _translate_kernel_2t(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, ox, oy, oz, max_rel_jump, max_splat,
+                         col_limit, out_planes, out_depth, out_valid, bufs_a, bufs_b):  # pragma: no cover - compiled
+    """:func:`_translate_kernel` on two threads, with the same result bit for bit: the source rows
+    split where half the valid pixels lie, each part's keys into a key buffer of its own (``bufs_a``
+    / ``bufs_b``: :func:`_translate_buffers` of each thread), then the output pass split at half
+    the map's rows, each half taking the minimum of both buffers' keys (the key carries the source
+    index, so that is the one-thread result) and resetting both."""
+    height, width = depth.shape
+    busy = _busy_rows(valid)
+    half = busy.sum() >> 1
+    split, done = 0, 0
+    while split < height and done + busy[split] <= half:
+        done += busy[split]
+        split += 1
+    reach = np.zeros((2, 2), np.int64)
+    for t in numba.prange(2):
+        b = bufs_a if t == 0 else bufs_b
+        lo, hi = (0, split) if t == 0 else (split, height)
+        a, z = _warp_rows(lo, hi, busy, depth, valid, row_sin, row_cos, col_sin, col_cos, ox, oy, oz, max_rel_jump,
+                          max_splat, col_limit, b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7], b[8], b[9], b[10], b[11],
+                          b[12], b[13], b[14], b[15])
+        reach[t, 0], reach[t, 1] = a, z
+    p_lo, p_hi = _mn(reach[0, 0], reach[1, 0]), _mx(reach[0, 1], reach[1, 1])
+    mid = (height >> 1) * width
+    n = height * width
+    for t in numba.prange(2):
+        _gather(0 if t == 0 else mid, mid if t == 0 else n, bufs_a[0], bufs_b[0], True, planes, out_planes, out_depth,
+                out_valid, p_lo, p_hi)
+
+
 _warp_buffers = threading.local()
 
 
-def _translate_buffers(height: int, width: int) -> tuple[np.ndarray, ...]:
-    """Per-thread scratch of :func:`translate` for one map size, kept between calls (a map is
+def _translate_buffers(height: int, width: int, part: int = 0) -> tuple[np.ndarray, ...]:
+    """Scratch of :func:`translate` for one map size, per calling thread and ``part`` (0, or 1 for
+    the second kernel thread of :func:`_translate_kernel_2t`), kept between calls (a map is
     typically viewed from a moving origin many times; fresh 16 MB buffers cost page faults): the
     (H·W + :data:`_N_SPARE`,) int64 key buffer (all :data:`_NO_KEY` between calls but the spare
     keys), three (3, W) rings of reprojected rows, the (W,) v and u extents of one row, the per-row
     outputs of :func:`_splat_targets` (ta..td, t1 int32; keys int64; is2, isl uint8) and
-    the two (W,) int32 column lists of :func:`_translate_kernel`."""
+    the two (W,) int32 column lists of :func:`_warp_rows`."""
     cache = getattr(_warp_buffers, "by_shape", None)
     if cache is None:
         cache = _warp_buffers.by_shape = {}
-    if (height, width) not in cache:
-        cache.clear()  # one size at a time
+    if (height, width, part) not in cache:
+        for k in [k for k in cache if k[:2] != (height, width)]:
+            del cache[k]  # one size at a time
         n = height * width
         if n + _N_SPARE > np.iinfo(np.int32).max:  # t1 is int32
             raise InvalidInputError(f"translate: at most 2**31 - {_N_SPARE + 1} pixels, got {height}×{width}")
-        cache[(height, width)] = (np.full(n + _N_SPARE, _NO_KEY, np.int64),
+        cache[(height, width, part)] = (np.full(n + _N_SPARE, _NO_KEY, np.int64),
                                   *(np.zeros((3, width), np.float32) for _ in range(3)),
                                   np.zeros(width, np.float32), np.zeros(width, np.float32),
                                   *(np.zeros(width, np.int32) for _ in range(4)),
                                   *(np.zeros(width, np.int32) for _ in range(3)),  # t1, l2, ll
                                   np.zeros(width, np.int64), np.zeros(width, np.uint8), np.zeros(width, np.uint8))
-    return cache[(height, width)]
+    return cache[(height, width, part)]
 
 
 def _check_out(em: EnvironmentMap, out: EnvironmentMap) -> None:
@@ -508,7 +573,8 @@ def _check_out(em: EnvironmentMap, out: EnvironmentMap) -> None:
 
 
 def translate_map(em: EnvironmentMap, offset: np.ndarray, method: str = "depth", *, radius_m: float = 2.0,
-              max_splat_px: int = 8, max_rel_jump: float = 0.2, out: EnvironmentMap | None = None) -> EnvironmentMap:
+              max_splat_px: int = 8, max_rel_jump: float = 0.2, out: EnvironmentMap | None = None,
+              threads: int = 2) -> EnvironmentMap:
     """A new map at ``em.origin + offset``; ``em`` is left intact (use the result in place of ``em``
     for a permanent move, or keep both for a temporary view).
 
@@ -526,11 +592,16 @@ def translate_map(em: EnvironmentMap, offset: np.ndarray, method: str = "depth",
     faults when the allocator cannot hand back a freed one (14 ms on this machine, 68 ms with
     numpy's default MADV_HUGEPAGE, which makes the kernel compact memory for huge pages).
 
+    ``threads``: 1, or 2 (the default; more are used as 2, and 2 as 1 where numba has one thread)
+    for the depth warp on two threads (:func:`_translate_kernel_2t`), with the same result bit for
+    bit.
+
     The depth warp computes landing positions in float32 (within 1e-4 pixel) and keeps per-thread
     scratch for the last map size between calls (an (H·W + 8,) int64 key buffer, 16 MB at
-    2000×1000).
+    2000×1000; two of them on two threads).
     """
     check_method(method, TRANSLATE_METHODS)
+    check_positive_int(threads, "threads")
     off = check_array(offset, "offset", shape=(3,), dtype=("float", "int"), finite=True).astype(np.float64)
     new_origin = em.origin + off
     if out is not None:
@@ -550,11 +621,13 @@ def translate_map(em: EnvironmentMap, offset: np.ndarray, method: str = "depth",
         h, w = em.height, em.width
         o = (em.origin - new_origin).astype(np.float32)
         col_limit = _col_limits(h, w, int(max_splat_px)).astype(np.float32)
-        key, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td, t1, l2, ll, keys, is2, isl = _translate_buffers(h, w)
         # Contiguous sin / cos columns: strided reads from the (W, 2) tables kept the loop scalar.
-        _translate_kernel(em.depth_m, em.valid, em.radiance_planes, *_trig_columns(h, w), o[0], o[1], o[2],
-                          np.float32(max_rel_jump), int(max_splat_px), col_limit, out.radiance_planes, out.depth_m,
-                          out.valid, key, pv, pu, pd, ext_v, ext_u, ta, tb, tc, td, t1, l2, ll, keys, is2, isl)
+        args = (em.depth_m, em.valid, em.radiance_planes, *_trig_columns(h, w), o[0], o[1], o[2], np.float32(max_rel_jump),
+                int(max_splat_px), col_limit, out.radiance_planes, out.depth_m, out.valid)
+        if _threads(threads) >= 2:
+            _translate_kernel_2t(*args, _translate_buffers(h, w, 0), _translate_buffers(h, w, 1))
+        else:
+            _translate_kernel(*args, *_translate_buffers(h, w))
         return out
     # Backward warp: the ray from the new origin along each output direction meets the sphere
     # |x − o| = R at x = o' + t d with t = −(off·d) + sqrt((off·d)² − |off|² + R²).

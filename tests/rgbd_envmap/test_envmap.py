@@ -835,8 +835,9 @@ def _reference_translate(em, offset, max_splat_px=8, max_rel_jump=0.2):
     return out
 
 
+@pytest.mark.parametrize("threads", [1, 2])
 @pytest.mark.parametrize("offset", [(0.3, -0.2, 0.1), (-0.05, 0.0, 0.6), (0.0, 0.0, 0.0)])
-def test_translate_kernel_equals_the_per_pixel_reference(offset):
+def test_translate_kernel_equals_the_per_pixel_reference(offset, threads):
     # Random depths with depth jumps, holes and empty rows (the kernel skips them), a far move
     # (magnified footprints, the seam, the poles) and ties: whole constant-depth rows.
     rng = np.random.default_rng(3)
@@ -849,16 +850,17 @@ def test_translate_kernel_equals_the_per_pixel_reference(offset):
     rad = rng.random((h, w, 3)).astype(np.float32)
     em = EnvironmentMap.from_arrays(rad, depth, valid, np.zeros(3))
     off = np.array(offset)
-    got, ref = translate(em, off), _reference_translate(em, off)
+    got, ref = translate(em, off, threads=threads), _reference_translate(em, off)
     np.testing.assert_array_equal(got.valid, ref.valid)
     np.testing.assert_array_equal(got.depth_m, ref.depth_m)
     np.testing.assert_array_equal(got.radiance_planes, ref.radiance_planes)
-    # The source map is intact and the key buffer clean for the next call (the spare keys past
+    # The source map is intact and the key buffers clean for the next call (the spare keys past
     # the map's end take the updates of pixels that are not one-pixel footprints).
     from rgbd_envmap.translation import _NO_KEY, _translate_buffers
 
     np.testing.assert_array_equal(em.depth_m, depth)
-    assert (_translate_buffers(h, w)[0][: h * w] == _NO_KEY).all()
+    for part in range(threads):
+        assert (_translate_buffers(h, w, part)[0][: h * w] == _NO_KEY).all()
 
 
 def test_float32_atan2_matches_libm():
@@ -925,9 +927,27 @@ def test_translate_keys_of_earlier_calls_never_show():
     dense, sparse = _random_map(rng, h, w, 0.95), _random_map(rng, h, w, 0.3)
     off = np.array([0.2, -0.1, 0.05])
     ref_dense, ref_sparse = _reference_translate(dense, off), _reference_translate(sparse, off)
-    for _ in range(2):
-        _assert_same_map(translate(dense, off), ref_dense)
-        _assert_same_map(translate(sparse, off), ref_sparse)
+    for threads in (2, 1, 2):
+        _assert_same_map(translate(dense, off, threads=threads), ref_dense)
+        _assert_same_map(translate(sparse, off, threads=threads), ref_sparse)
+
+
+@pytest.mark.parametrize("h, w", [(1, 1), (2, 3), (3, 8), (40, 80)])
+def test_translate_on_two_threads_is_the_one_thread_map(h, w):
+    # The rows split where half the valid pixels lie (all in one half, none, or one row apart),
+    # the output pass at half the rows; a far move, so footprints cross the split both ways.
+    rng = np.random.default_rng(9)
+    for coverage in (0.0, 0.5, 1.0):
+        em = _random_map(rng, h, w, coverage)
+        em.valid[: h // 2] &= coverage < 1.0  # top half empty in the dense case: the split moves down
+        for off in (np.array([0.4, 0.1, -0.3]), np.array([0.0, 0.0, 0.9]), np.zeros(3)):
+            _assert_same_map(translate(em, off, threads=2), translate(em, off, threads=1))
+
+
+def test_translate_threads_must_be_positive():
+    for bad in (0, -1, 1.5):
+        with pytest.raises((InvalidInputError, RangeError, DTypeError)):
+            translate(EnvironmentMap(H, W), np.array([0.1, 0.0, 0.0]), threads=bad)
 
 
 def test_translate_out_gives_the_same_map_in_place():
