@@ -75,6 +75,15 @@ percentile of 15 calls each, alternating with the module before the round in one
 (spans whose float64 and float32 ends round to different pixels). The whole call moved by less than
 the machine's noise in that run (medians 32.8 → 31.9 and 31.5 → 30.5 ms under load).
 
+Two threads (``threads=2``, the default; :func:`_translate_kernel_2t`): the source rows split where
+half the valid pixels lie, each part's keys into a key buffer of its own (the keys carry the source
+index, so the minimum over both buffers is the one-thread key), then the output pass split at half
+the rows, each half reading both buffers and resetting them. The same map bit for bit (tests, and
+0 pixels differ on both benchmark maps). ``python benchmarks/bench_envmap.py --only-translation
+--threads 2`` times it beside one thread; in a quieter spell, both in one process alternately (15 rounds, median ms): true map 24.2-24.7 → 16.8-17.8,
+session map 22.7-23.1 → 17.1-17.4. Not 2×: the output pass is bound by memory bandwidth the two cores
+share. A first call compiles for 13 s instead of 7 (numba's cache keeps it afterwards).
+
 Tried and dropped in the fifth round (same harness; outputs identical where the semantics were kept):
 the output pass in chunks of 256 pixels, keys decoded 16 lanes at a time, the next chunk's sources
 prefetched by a loop of their own and scalar colour gathers (+2 ms: the pass is bound by its ~75 MB
