@@ -78,24 +78,25 @@ the machine's noise in that run (medians 32.8 → 31.9 and 31.5 → 30.5 ms unde
 Two threads (``threads=2``, the default; :func:`_translate_kernel_2t`): the source rows split where
 half the valid pixels lie, each part's keys into a key buffer of its own (the keys carry the source
 index, so the minimum over both buffers is the one-thread key), then the output pass split at half
-the rows, each half reading both buffers and resetting them. The same map bit for bit (tests, and
-0 pixels differ on both benchmark maps). ``python benchmarks/bench_envmap.py --only-translation
---threads 2`` times it beside one thread; in a quieter spell, both in one process alternately (15 rounds, median ms): true map 24.2-24.7 → 16.8-17.8,
-session map 22.7-23.1 → 17.1-17.4. Not 2×: the output pass is bound by memory bandwidth the two cores
-share. A first call compiles for 13 s instead of 7 (numba's cache keeps it afterwards).
+the rows, each half reading both buffers and resetting them. The same map bit for bit (tests, and 0
+pixels differ on both benchmark maps). ``python benchmarks/bench_envmap.py --only-translation
+--threads 2`` times it beside one thread; in a quieter spell, both in one process alternately (15
+rounds, median ms): true map 24.2-24.7 → 16.8-17.8, session map 22.7-23.1 → 17.1-17.4. Not 2×: the
+output pass is bound by memory bandwidth the two cores share. A first call compiles for 13 s instead
+of 7 (numba's cache keeps it afterwards).
 
-Tried and dropped in the fifth round (same harness; outputs identical where the semantics were kept):
-the output pass in chunks of 256 pixels, keys decoded 16 lanes at a time, the next chunk's sources
-prefetched by a loop of their own and scalar colour gathers (+2 ms: the pass is bound by its ~75 MB
-of memory traffic at the 13-16 GB/s one core gets here, not by its instructions); emitting output
-rows as soon as no later source row can reach them, so that their keys are read back from cache (a
-timing probe with a fixed lag of 32-2000 rows: no change, so the keys' round trip to memory is not
-what the pass waits on); eight one-pixel footprints on eight consecutive targets as one vector min
-(the one-pixel stage 4.0 → 6.8 ms: the chunk test's branch mispredicts); footprints reaching a different distance below and above (v, u), each
-half the largest step to a neighbour on that side, instead of the same both ways (2.4× → 2.2×
-overdraw of the magnified footprints on the true map, 3.4× → 1.7× on the session's, but no faster:
-a magnified footprint's row costs one masked 8-lane update whatever its width; and 0.6 % / 2.3 %
-of the output pixels became holes).
+Tried and dropped in the fifth round (same harness; outputs identical where the semantics were
+kept): the output pass in chunks of 256 pixels, keys decoded 16 lanes at a time, the next chunk's
+sources prefetched by a loop of their own and scalar colour gathers (+2 ms: the pass is bound by its
+~75 MB of memory traffic at the 13-16 GB/s one core gets here, not by its instructions); emitting
+output rows as soon as no later source row can reach them, so that their keys are read back from
+cache (a timing probe with a fixed lag of 32-2000 rows: no change, so the keys' round trip to memory
+is not what the pass waits on); eight one-pixel footprints on eight consecutive targets as one
+vector min (the one-pixel stage 4.0 → 6.8 ms: the chunk test's branch mispredicts); footprints
+reaching a different distance below and above (v, u), each half the largest step to a neighbour on
+that side, instead of the same both ways (2.4× → 2.2× overdraw of the magnified footprints on the
+true map, 3.4× → 1.7× on the session's, but no faster: a magnified footprint's row costs one masked
+8-lane update whatever its width; and 0.6 % / 2.3 % of the output pixels became holes).
 
 References:
     Monroy, Hudon, Smolic (2018), §6.2.
