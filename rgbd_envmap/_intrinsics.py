@@ -9,6 +9,7 @@
 - :func:`_store_nt`: a non-temporal (streaming) store, for output written once and not read back.
 - :func:`_min_run8`: ``min`` of up to 8 consecutive int64 entries and a key, as one masked vector
   load / min / store.
+- :func:`_fetch_add`: an atomic add that returns the previous value (a work counter shared by threads).
 - :data:`_PRANGE_ONLY`: numba's parallel options of the two-thread kernels (and the threading
   layer they run on).
 
@@ -128,5 +129,21 @@ def _min_run8(typingctx, arr, q, m, kk):  # pragma: no cover - compiled
         old = builder.call(load, [vptr, ir.Constant(i32, 8), mask, k])
         builder.call(store, [builder.select(builder.icmp_signed("<", k, old), k, old), vptr, ir.Constant(i32, 8), mask])
         return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def _fetch_add(typingctx, arr, i, v):  # pragma: no cover - compiled
+    """arr[i] += v atomically for a 1-D int64 array; returns the value before (LLVM's atomicrmw add,
+    sequentially consistent): threads taking work items from a shared counter."""
+    sig = types.int64(arr, i, v)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1]], wraparound=False, boundscheck=False)
+        val = context.cast(builder, args[2], signature.args[2], types.int64)
+        return builder.atomic_rmw("add", ptr, val, "seq_cst")
 
     return sig, codegen

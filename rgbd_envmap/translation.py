@@ -75,15 +75,19 @@ percentile of 15 calls each, alternating with the module before the round in one
 (spans whose float64 and float32 ends round to different pixels). The whole call moved by less than
 the machine's noise in that run (medians 32.8 → 31.9 and 31.5 → 30.5 ms under load).
 
-Two threads (``threads=2``, the default; :func:`_translate_kernel_2t`): the source rows split where
-half the valid pixels lie, each part's keys into a key buffer of its own (the keys carry the source
-index, so the minimum over both buffers is the one-thread key), then the output pass split at half
-the rows, each half reading both buffers and resetting them. The same map bit for bit (tests, and 0
+Two threads (``threads=2``, the default; :func:`_translate_kernel_2t`): the busy source rows cut
+into 16 chunks of about equal valid pixels, which the two threads take in turn from a shared atomic
+counter, each chunk's keys into the taking thread's own key buffer (the keys carry the source index,
+so the minimum over both buffers is the one-thread key), then the output pass split at half the
+rows, each half reading both buffers and resetting them. The same map bit for bit (tests, and 0
 pixels differ on both benchmark maps). ``python benchmarks/bench_envmap.py --only-translation
 --threads 2`` times it beside one thread; in a quieter spell, both in one process alternately (15
-rounds, median ms): true map 24.2-24.7 → 16.8-17.8, session map 22.7-23.1 → 17.1-17.4. Not 2×: the
-output pass is bound by memory bandwidth the two cores share. A first call compiles for 13 s instead
-of 7 (numba's cache keeps it afterwards).
+rounds, median ms), with the rows split once at half the valid pixels: true map 24.2-24.7 →
+16.8-17.8, session map 22.7-23.1 → 17.1-17.4. That static split left one thread 9.4 ms of key
+updates and the other 5.9 on the session's map (the magnified footprints of the table under the
+origin sit in the lower rows); the chunks gained 0.9-1.4 ms more (21 rounds against it, in a loaded
+spell: 22.0 → 21.1 and 21.8 → 20.4 ms). Not 2×: the output pass is bound by memory bandwidth the two
+cores share. A first call compiles for 13 s instead of 7 (numba's cache keeps it afterwards).
 
 Tried and dropped in the fifth round (same harness; outputs identical where the semantics were
 kept): the output pass in chunks of 256 pixels, keys decoded 16 lanes at a time, the next chunk's
@@ -111,7 +115,7 @@ import threading
 import numba
 import numpy as np
 
-from rgbd_envmap._intrinsics import _PRANGE_ONLY, _bits_f32, _f32_bits, _min_run8, _prefetch, _store_nt
+from rgbd_envmap._intrinsics import _PRANGE_ONLY, _bits_f32, _f32_bits, _fetch_add, _min_run8, _prefetch, _store_nt
 from rgbd_envmap.checks import check_array, check_method, check_positive_int
 from rgbd_envmap.envmap import (
     _ATAN_POLY,
@@ -510,29 +514,49 @@ def _translate_kernel(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, 
     _gather(0, height * width, key, key, False, planes, out_planes, out_depth, out_valid, p_lo, p_hi)
 
 
+#: The two-thread translation hands out the source rows in this many chunks (see
+#: :func:`_translate_kernel_2t`).
+_CHUNKS = 16
+
+
 @numba.njit(cache=True, parallel=_PRANGE_ONLY)
 def _translate_kernel_2t(depth, valid, planes, row_sin, row_cos, col_sin, col_cos, ox, oy, oz, max_rel_jump, max_splat,
                          col_limit, out_planes, out_depth, out_valid, bufs_a, bufs_b):  # pragma: no cover - compiled
-    """:func:`_translate_kernel` on two threads, with the same result bit for bit: the source rows
-    split where half the valid pixels lie, each part's keys into a key buffer of its own (``bufs_a``
-    / ``bufs_b``: :func:`_translate_buffers` of each thread), then the output pass split at half
-    the map's rows, each half taking the minimum of both buffers' keys (the key carries the source
-    index, so that is the one-thread result) and resetting both."""
+    """:func:`_translate_kernel` on two threads, with the same result bit for bit. The busy source
+    rows are cut into :data:`_CHUNKS` chunks of about equal valid pixels, which the two threads take
+    in turn from a shared counter (:func:`_fetch_add`), each updating a key buffer of its own
+    (``bufs_a`` / ``bufs_b``: :func:`_translate_buffers` of each part): a static split at half the
+    pixels left one thread with 9.4 ms and the other 5.9 on the recorded session's map, whose
+    magnified footprints (the table under the origin) sit in the lower rows. Each chunk reprojects
+    its first row's upper neighbour again. Then the output pass split at half the map's rows, each
+    half taking the minimum of both buffers' keys (the key carries the source index, so that is the
+    one-thread result) and resetting both."""
     height, width = depth.shape
     busy = _busy_rows(valid)
-    half = busy.sum() >> 1
-    split, done = 0, 0
-    while split < height and done + busy[split] <= half:
-        done += busy[split]
-        split += 1
+    total = busy.sum()
+    bounds = np.zeros(_CHUNKS + 1, np.int64)  # chunk k: rows bounds[k] .. bounds[k + 1] - 1
+    done, k = 0, 1
+    for t in range(height):
+        done += busy[t]
+        if k < _CHUNKS and done * _CHUNKS >= k * total:
+            bounds[k] = t + 1
+            k += 1
+    for j in range(k, _CHUNKS + 1):
+        bounds[j] = height
+    counter = np.zeros(1, np.int64)
     reach = np.zeros((2, 2), np.int64)
     for t in numba.prange(2):
         b = bufs_a if t == 0 else bufs_b
-        lo, hi = (0, split) if t == 0 else (split, height)
-        a, z = _warp_rows(lo, hi, busy, depth, valid, row_sin, row_cos, col_sin, col_cos, ox, oy, oz, max_rel_jump,
-                          max_splat, col_limit, b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7], b[8], b[9], b[10], b[11],
-                          b[12], b[13], b[14], b[15])
-        reach[t, 0], reach[t, 1] = a, z
+        lo_t, hi_t = height * width, -1
+        c = _fetch_add(counter, 0, 1)
+        while c < _CHUNKS:
+            if bounds[c + 1] > bounds[c]:
+                a, z = _warp_rows(bounds[c], bounds[c + 1], busy, depth, valid, row_sin, row_cos, col_sin, col_cos, ox, oy,
+                                  oz, max_rel_jump, max_splat, col_limit, b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7],
+                                  b[8], b[9], b[10], b[11], b[12], b[13], b[14], b[15])
+                lo_t, hi_t = _mn(lo_t, a), _mx(hi_t, z)
+            c = _fetch_add(counter, 0, 1)
+        reach[t, 0], reach[t, 1] = lo_t, hi_t
     p_lo, p_hi = _mn(reach[0, 0], reach[1, 0]), _mx(reach[0, 1], reach[1, 1])
     mid = (height >> 1) * width
     n = height * width
