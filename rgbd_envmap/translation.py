@@ -111,6 +111,7 @@ from __future__ import annotations
 
 import math
 import threading
+from functools import lru_cache
 
 import numba
 import numpy as np
@@ -129,7 +130,6 @@ from rgbd_envmap.envmap import (
     _trig_columns,
 )
 from rgbd_envmap.errors import InvalidInputError
-from rgbd_envmap.geometry import equirect_directions, equirect_pixel_index
 
 __all__ = ["translate_map"]
 
@@ -565,6 +565,58 @@ def _translate_kernel_2t(depth, valid, planes, row_sin, row_cos, col_sin, col_co
                 out_valid, p_lo, p_hi)
 
 
+@numba.njit(cache=True, fastmath=True)
+def _gardner_rows(row_sin, row_cos, col_sin, col_cos, ox, oy, oz, radius, planes, valid, out_planes, out_depth, out_valid,
+                  rows_buf, cols_buf):  # pragma: no cover - compiled
+    """Gardner et al.'s warp, backwards: each output pixel's ray from the new origin (the old one
+    plus (ox, oy, oz)) meets the sphere of ``radius`` around the old origin at t = −(o·d) +
+    sqrt((o·d)² − |o|² + R²); the output takes the source pixel containing o + t·d (the pixel
+    index of :func:`rgbd_envmap.geometry.equirect_pixel_index`, with :func:`_atan2_branchless` for
+    atan2, so that the per-row loop vectorises) and t as its distance where that pixel is valid.
+    The pixel-centre directions come from float64 sin / cos of the rows and columns (contiguous, so
+    the loop vectorises; strided (H, W, 3) reads kept it scalar: 60-66 instead of 26-33 ms a map);
+    ``rows_buf`` / ``cols_buf``: (W,) int64."""
+    height, width = valid.shape
+    oo = ox * ox + oy * oy + oz * oz
+    rr = radius * radius
+    kv = height / math.pi
+    ku = width / (2.0 * math.pi)
+    zero = np.float32(0.0)
+    for r in range(height):
+        st, dz = row_sin[r], row_cos[r]
+        for c in range(width):  # vectorised: the source pixel of each output pixel
+            dx, dy = st * col_cos[c], st * col_sin[c]
+            b = dx * ox + dy * oy + dz * oz
+            t = -b + math.sqrt(b * b - oo + rr)
+            sx, sy, sz = ox + t * dx, oy + t * dy, oz + t * dz
+            theta = _atan2_branchless(math.sqrt(sx * sx + sy * sy), sz)
+            u = (_atan2_branchless(sy, sx) + math.pi) * ku  # in [0, W]
+            v = theta * kv
+            col = np.floor(u)  # floor(u - 0.5 + 0.5): pixel centres at k + 0.5
+            col = col - width if col >= width else col
+            row = _mn(_mx(np.floor(v), 0.0), height - 1.0)
+            rows_buf[c] = np.int64(row)
+            cols_buf[c] = np.int64(col)
+            out_depth[r, c] = np.float32(t)
+        for c in range(width):  # the gathers
+            sr, sc = rows_buf[c], cols_buf[c]
+            ok = valid[sr, sc]
+            out_valid[r, c] = ok
+            out_planes[0, r, c] = planes[0, sr, sc] if ok else zero
+            out_planes[1, r, c] = planes[1, sr, sc] if ok else zero
+            out_planes[2, r, c] = planes[2, sr, sc] if ok else zero
+            out_depth[r, c] = out_depth[r, c] if ok else zero
+
+
+@lru_cache(maxsize=8)
+def _trig64(height: int, width: int) -> tuple[np.ndarray, ...]:
+    """float64 sin θ, cos θ of the row centres and sin φ, cos φ of the column centres (the pixel
+    directions of :func:`rgbd_envmap.geometry.equirect_directions` before its float32 cast)."""
+    theta = np.pi * (np.arange(height) + 0.5) / height
+    phi = 2.0 * np.pi * (np.arange(width) + 0.5) / width - np.pi
+    return np.sin(theta), np.cos(theta), np.sin(phi), np.cos(phi)
+
+
 _warp_buffers = threading.local()
 
 
@@ -663,14 +715,9 @@ def translate_map(em: EnvironmentMap, offset: np.ndarray, method: str = "depth",
         else:
             _translate_kernel(*args, *_translate_buffers(h, w))
         return out
-    # Backward warp: the ray from the new origin along each output direction meets the sphere
-    # |x − o| = R at x = o' + t d with t = −(off·d) + sqrt((off·d)² − |off|² + R²).
-    dirs = equirect_directions(em.height, em.width).astype(np.float64)
-    b = dirs @ off
-    t = -b + np.sqrt(b * b - off @ off + radius_m**2)
-    src = off + t[..., None] * dirs  # point relative to the old origin
-    rows, cols, _ = equirect_pixel_index(src, em.height, em.width)
-    out.radiance_planes[:] = em.radiance_planes[:, rows, cols]
-    out.valid[:] = em.valid[rows, cols]
-    out.depth_m[:] = np.where(out.valid, t, 0.0)
+    # Backward warp (numpy's whole-map version took 350-410 ms a 2000×1000 map, this one 26-33; 1 and 12 of
+    # 2 M pixels differ, rays within the polynomial atan2's 1.2e-8 rad of a pixel edge).
+    _gardner_rows(*_trig64(em.height, em.width), float(off[0]), float(off[1]), float(off[2]), float(radius_m),
+                  em.radiance_planes, em.valid, out.radiance_planes, out.depth_m, out.valid,
+                  np.empty(em.width, np.int64), np.empty(em.width, np.int64))
     return out
