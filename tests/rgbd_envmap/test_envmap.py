@@ -1075,3 +1075,35 @@ def test_change_log_overflow_and_mark_modified_say_incomplete():
     em.mark_modified()
     assert not em.take_changes().complete
     assert translate(em, np.zeros(3)).take_changes() is None  # a new map does not record
+
+
+@pytest.mark.parametrize("avx512", [True, False])
+def test_compress16_lists_the_flagged_columns_in_order(monkeypatch, avx512):
+    # Both code paths of the intrinsic (AVX-512's register compress, LLVM's portable
+    # compress-store), each in a freshly compiled function: the flagged columns of each 16, in
+    # order, appended after what the list holds; 16 flags past the end read as zero padding.
+    import numba
+
+    from rgbd_envmap import _intrinsics
+
+    if avx512 and not _intrinsics._host_has_avx512():
+        pytest.skip("no AVX-512 here")
+    monkeypatch.setattr(_intrinsics, "_AVX512", avx512)
+    compress16 = _intrinsics._compress16
+
+    @numba.njit(cache=False)
+    def listed(flags, width, out, n):
+        for c0 in range(0, width, 16):
+            n = compress16(flags, c0, out, n)
+        return n
+
+    rng = np.random.default_rng(11)
+    for width, p in ((1, 1.0), (16, 0.0), (37, 0.5), (200, 0.1), (200, 1.0)):
+        flags = np.zeros(width + 16, np.uint8)
+        flags[:width] = rng.random(width) < p
+        out = np.full(width + 16 + 5, -7, np.int32)
+        n = listed(flags, width, out, 5)
+        expect = np.flatnonzero(flags[:width])
+        assert n == 5 + len(expect)
+        np.testing.assert_array_equal(out[5:n], expect)
+        assert (out[:5] == -7).all()  # what the list held before is untouched
