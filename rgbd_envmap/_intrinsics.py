@@ -15,6 +15,10 @@
   layer they run on).
 
 Each is tested through the kernels that use it (tests/rgbd_envmap/test_envmap.py, test_sh.py).
+
+numba's on-disk cache keys a kernel on its own source file only: after editing this file alone, the
+kernels that inline these intrinsics keep their old machine code until their modules change or the
+cache files go (``find rgbd_envmap -name '*.nb[ci]' -delete``). A fresh clone or install has none.
 """
 
 from __future__ import annotations
