@@ -316,7 +316,9 @@ def _splat_targets(valid, r, pv, pu, pd, sr, hv, hu, height, width, max_splat, m
                    isl):  # pragma: no cover - compiled
     """For each pixel of row r, the flat target indices of its footprint when it covers at most 2×2
     pixels (ta..td, int32, repeats allowed: the one pixel (v, u) falls in when both extents are
-    0.5); is2 / isl flag a valid footprint of 2 to 4 pixels / a larger one (left to the caller).
+    0.5); is2 / isl flag a valid footprint of 2 to 4 pixels / a larger one (left to the caller,
+    which finds its first target in ta and its column count (0: recompute with the landing row's
+    column limit), first row and last row in tb, tc, td).
     No branches, so the row vectorises: the spans are :func:`_span32`'s (float32, 16 lanes), the
     indices int32. The column limit of the landing row (a table lookup, which kept the loop scalar)
     is replaced by its minimum over rows: a footprint it would clip goes to the caller as large, and
