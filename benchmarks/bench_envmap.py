@@ -31,6 +31,10 @@ and the §6.2 translation), the current kernels side by side with the previous o
    after every frame the maps, the ``UpdateStats`` and the change logs must be identical.
    Median / p95 ms of the call, and of each frame's fastest pass (less sensitive to a noisy
    machine).
+6. ``--update-parts`` (alone): the same calls with one part of the update switched off at a time
+   (:data:`UPDATE_PARTS`: footprints clamped, colour averaging, carving, footprints, all three),
+   each setting on a map of its own, alternately frame by frame: what each part costs per frame
+   on one thread, and how many map pixels it touches and takes.
 
 Each pair of rows is timed alternately in the same run (the machine is shared and noisy). Single
 thread: every kernel is serial numba. The previous kernels (before the issue-4 speed work) are kept
@@ -785,6 +789,55 @@ def update_against_baseline(root: Path, baseline, rounds: int, rows: dict, threa
     rows["  baseline module "] = _stats(list(ms["baseline"].min(0)))
 
 
+#: ``--update-parts``: the update with one part of it switched off at a time (name, UpdateConfig fields).
+UPDATE_PARTS = (
+    ("defaults", {}),
+    ("footprints clamped to 8 rows (max_splat_px=8)", {"max_splat_px": 8}),
+    ("colour replaced, not averaged (colour_average=1)", {"colour_average": 1}),
+    ("no free-space carving (carve=False)", {"carve": False}),
+    ("one pixel per sample (splat=False)", {"splat": False}),
+    ("the paper's update: one pixel, no carving, colour replaced", {"splat": False, "carve": False, "colour_average": 1}),
+)
+
+
+def update_parts(root: Path, rounds: int, rows: dict) -> None:
+    """What each part of ``update`` costs on one thread: the recorded session's update calls run with
+    each setting of :data:`UPDATE_PARTS` on a map of its own (so each map evolves as a capture with
+    that setting would), alternately frame by frame (the order rotating), ``rounds`` passes from
+    empty maps, every map recording changes as the pipeline's does. Per setting: median / p95 ms per
+    frame, and the median map pixels touched and taken a frame (printed). The first frame is left
+    out of the times."""
+    data = recorded_update_calls(root)
+    if data is None:
+        print(f"recorded session: none at {root} (bash main.sh writes it); skipped")
+        return
+    origin, h, w, calls = data
+    names = [name for name, _ in UPDATE_PARTS]
+    ms = {name: [] for name in names}
+    touched = {name: [] for name in names}
+    taken = {name: [] for name in names}
+    for r in range(rounds):
+        maps = {name: EnvironmentMap(h, w, origin) for name in names}
+        for em in maps.values():
+            em.record_changes()
+        for j, (pts, col, dev, focal, config, fill_only, seen) in enumerate(calls):
+            shift = (j + r) % len(UPDATE_PARTS)
+            for name, fields in UPDATE_PARTS[shift:] + UPDATE_PARTS[:shift]:
+                cfg = dataclasses.replace(config, threads=1, **fields)
+                t0 = time.perf_counter()
+                stats = update(maps[name], pts, col, dev, focal, cfg, fill_only, seen)
+                if j > 0:
+                    ms[name].append((time.perf_counter() - t0) * 1e3)
+                    touched[name].append(stats.touched)
+                    taken[name].append(stats.taken)
+                maps[name].take_changes()
+    print(f"update on {len(calls) - 1} recorded frames (the first left out), {rounds} rounds, one thread, "
+          f"each setting on its own map:")
+    for name in names:
+        print(f"  {name}: median {np.median(touched[name]):.0f} map pixels touched, {np.median(taken[name]):.0f} taken a frame")
+        rows[f"update per frame, {name}"] = _stats(ms[name])
+
+
 def load_translation_module(path: Path):
     """Another version of a library module (a copy of rgbd_envmap/translation.py or envmap.py), imported
     under its own name."""
@@ -840,6 +893,9 @@ def main() -> None:
     parser.add_argument("--update-baseline", type=Path, default=None,
                         help="a copy of another version of rgbd_envmap/envmap.py: time update() against it "
                              "on the recorded session (alone; --recorded-rounds passes)")
+    parser.add_argument("--update-parts", action="store_true",
+                        help="alone: what each part of update() costs on the recorded session (one thread; "
+                             "--recorded-rounds passes)")
     parser.add_argument("--update-threads", type=int, default=1,
                         help="with --update-baseline: UpdateConfig.threads of the library's calls")
     parser.add_argument("--threads", type=int, default=1,
@@ -857,6 +913,13 @@ def main() -> None:
         rows = {}
         update_against_baseline(args.recorded, load_translation_module(args.update_baseline),
                                 max(1, args.recorded_rounds), rows, args.update_threads)
+        print_rows(rows)
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=2) + "\n")
+        return
+    if args.update_parts:
+        rows = {}
+        update_parts(args.recorded, max(1, args.recorded_rounds), rows)
         print_rows(rows)
         if args.json:
             args.json.write_text(json.dumps(rows, indent=2) + "\n")
