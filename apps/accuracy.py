@@ -41,11 +41,12 @@ def _downsample_truth(radiance: np.ndarray, distance: np.ndarray, valid: np.ndar
         cols = np.minimum(((np.arange(w) + 0.5) * W / w).astype(int), W - 1)
         return radiance[rows][:, cols], distance[rows][:, cols], valid[rows][:, cols]
     k = H // h
-    v = valid.reshape(h, k, w, k).astype(np.float32)
-    n = v.sum(axis=(1, 3))
+    v = valid.reshape(h, k, w, k)
+    n = v.sum(axis=(1, 3)).astype(np.float32)
+    # Selected, not multiplied by the mask: what lies under an invalid pixel (NaN is allowed) counts nowhere.
     with np.errstate(invalid="ignore", divide="ignore"):
-        rad = (radiance.reshape(h, k, w, k, 3) * v[..., None]).sum(axis=(1, 3)) / n[..., None]
-        dist = (distance.reshape(h, k, w, k) * v).sum(axis=(1, 3)) / n
+        rad = np.where(v[..., None], radiance.reshape(h, k, w, k, 3), 0).sum(axis=(1, 3)) / n[..., None]
+        dist = np.where(v, distance.reshape(h, k, w, k), 0).sum(axis=(1, 3)) / n
     ok = n > 0
     return np.where(ok[..., None], rad, 0).astype(np.float32), np.where(ok, dist, 0).astype(np.float32), ok
 
@@ -115,12 +116,14 @@ class AccuracyTracker:
         lum = np.array([0.2126, 0.7152, 0.0722])
         lt, le = sh.irradiance(truth, normals) @ lum, sh.irradiance(est, normals) @ lum
         ok = lt > 1e-6 * max(lt.max(), 1e-12)
-        out["irradiance_rel_error_mean"] = float(np.mean(np.abs(le[ok] - lt[ok]) / lt[ok]))
+        if ok.any():  # a black or empty true map lights no normal: no relative error to give
+            out["irradiance_rel_error_mean"] = float(np.mean(np.abs(le[ok] - lt[ok]) / lt[ok]))
         # against the true irradiance (8 bands of the true map: within 0.4 % of a brute-force cosine
-        # convolution, docs/sh.md), so SH truncation counts too: the error a band count buys
+        # convolution, docs/design/sh.md), so SH truncation counts too: the error a band count buys
         l8 = sh.irradiance(sh.project_equirect(grad, gv, 8), normals) @ lum
         ok8 = l8 > 1e-6 * max(l8.max(), 1e-12)
-        out["irradiance_rel_error_vs_true"] = float(np.mean(np.abs(le[ok8] - l8[ok8]) / l8[ok8]))
+        if ok8.any():
+            out["irradiance_rel_error_vs_true"] = float(np.mean(np.abs(le[ok8] - l8[ok8]) / l8[ok8]))
         if pipeline.colours is not None:
             from rgbd_envmap import prt
 
@@ -161,10 +164,13 @@ class AccuracyTracker:
             grad, gdist, gv = _downsample_truth(grad, gdist, gv, em.valid.shape)
             out["em_truth_downsampled"] = 1.0
         covered = em.valid & gv
-        out["em_coverage"] = metrics.coverage_of(em.valid, gv)
+        if gv.any():  # coverage of a truth with no data is undefined
+            out["em_coverage"] = metrics.coverage_of(em.valid, gv)
         if covered.any():
             out["em_ws_psnr_db"] = metrics.ws_psnr(np.clip(em.radiance, 0, 1), np.clip(grad, 0, 1), covered)
-            out["em_sphere_correlation"] = metrics.sphere_correlation(em.radiance, grad, covered)
+            corr = metrics.sphere_correlation(em.radiance, grad, covered)
+            if np.isfinite(corr):  # undefined where the covered pixels are constant
+                out["em_sphere_correlation"] = corr
             d = np.abs(em.depth_m[covered] - gdist[covered])
             out["em_depth_median_abs_m"] = float(np.median(d))
         return out

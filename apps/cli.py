@@ -6,8 +6,6 @@ import argparse
 import sys
 from pathlib import Path
 
-from rgbd_envmap.errors import RgbdEnvmapError
-
 __all__ = ["main", "build_parser"]
 
 
@@ -38,8 +36,26 @@ def _xyz(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number in metres, got {text!r}") from None
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """Shows an option's default only where it says something: not for flags, empty values, or
+    help texts that already name the default."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if ("default" in text or default in (None, False, [], argparse.SUPPRESS) or not action.option_strings
+                or action.nargs == 0):
+            return text
+        return text + " (default: %(default)s)"
+
+
 def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("pipeline settings (defaults: the paper's; see config.yaml of any run)")
+    g = p.add_argument_group(
+        "pipeline settings",
+        "Defaults follow the paper (Monroy et al. 2018) where it gives a value; ours are the depth "
+        "denoising, footprint splatting, free-space carving, colour averaging, the edge margin, the ridge "
+        "colour fit and two threads (docs/guide.md lists every field and says whose default it is; "
+        "config.yaml of any run holds the resolved values).")
     g.add_argument("--config", type=Path, default=None, metavar="YAML", help="a (partial) PipelineConfig YAML file")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override one setting, e.g. --set capture.ccm_method=least_squares --set shading.bands=3 (repeatable)")
@@ -73,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Simulated mobile RGB-D capture and real-time environment-map relighting.",
     )
     sub = parser.add_subparsers(dest="command", required=True)
-    fmt = argparse.ArgumentDefaultsHelpFormatter
+    fmt = _HelpFormatter
     sim = sub.add_parser(
         "simulate", formatter_class=fmt,
         help="simulate a capture session and run the pipeline on it live",
@@ -85,9 +101,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sim.add_argument("--duration", type=float, required=True, metavar="SECONDS", help="simulated time to record, in seconds")
     sim.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
-    sim.add_argument("--scene", default="office", metavar="NAME", help="scene name under sequences/scenes/ or a YAML path")
+    sim.add_argument("--scene", default="office", metavar="NAME", help="packaged scene name (office, empty) or a YAML path")
     sim.add_argument("--trajectory", default=None, metavar="NAME",
-                     help="trajectory name under sequences/trajectories/ or a YAML path (default: the scene's)")
+                     help="packaged trajectory name (orbit, orbit_inward, sweep, ...) or a YAML path (default: the scene's)")
     sim.add_argument("--seed", type=int, default=0, metavar="N", help="random seed; equal seeds give identical sessions")
     sim.add_argument("--colour-size", type=_size, default=(960, 540), metavar="WxH", help="colour camera resolution in pixels")
     sim.add_argument("--tracking-noise-m", type=float, default=0.0, metavar="METRES", help="σ of reported-position noise per packet")
@@ -139,6 +155,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from apps.process import configure_process
+
+    configure_process()  # before numpy, OpenCV and the library load
+    from rgbd_envmap.errors import RgbdEnvmapError
+
     args = build_parser().parse_args(argv)
     from apps.compile_once import install_from_env
 

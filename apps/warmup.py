@@ -15,17 +15,7 @@ Nothing else is written; a failure here only means the main process compiles the
 
 from __future__ import annotations
 
-import numpy as np
-
-from apps.compile_once import install_from_env
-from rgbd_envmap import assets, prt, render
-from rgbd_envmap.capture import CaptureConfig
-from rgbd_envmap.colour import DEFAULT_MAX_CONDITION, DEFAULT_RIDGE, _ccm_from_sums
-from rgbd_envmap.envmap import EnvironmentMap, SeenDepth, _frame_pair_sums, _frame_samples, update
-from rgbd_envmap.geometry import look_at
-from rgbd_envmap.pipeline import PipelineConfig
-from rgbd_envmap.sh import IncrementalProjection
-from rgbd_envmap.types import Intrinsics, RGBDFrame
+from apps.process import configure_process
 
 
 def main() -> int:
@@ -36,8 +26,22 @@ def main() -> int:
     reaches at the second depth frame, and last the update, which by then it loads. With the update
     first (the earlier order), a traced cold run showed the update unfinished when the main process
     reached it, and the pairs compiled by both processes."""
+    configure_process()  # before numpy and the library load
+    import numpy as np
+
+    from apps.compile_once import install_from_env
+    from rgbd_envmap import assets, prt, render
+    from rgbd_envmap.colour import DEFAULT_MAX_CONDITION, DEFAULT_RIDGE, ccm_from_sums
+    from rgbd_envmap.envmap import EnvironmentMap, SeenDepth, frame_pair_sums, frame_samples, update
+    from rgbd_envmap.geometry import look_at
+    from rgbd_envmap.pipeline import PipelineConfig
+    from rgbd_envmap.pipeline.capture import CaptureConfig
+    from rgbd_envmap.sh import IncrementalProjection
+    from rgbd_envmap.types import Intrinsics, RGBDFrame
+
     install_from_env()
     cfg = CaptureConfig()
+    threads = PipelineConfig().threads
     rng = np.random.default_rng(0)
     intr = Intrinsics(16, 12, 14.0, 14.0, 7.5, 5.5)
     frames = []
@@ -49,7 +53,7 @@ def main() -> int:
     # config in front of a 64×48 camera (arrays as the pipeline passes them).
     oc = PipelineConfig().object
     obj = assets.load_virtual_object(oc.name, height_m=oc.height_m)
-    plane_v, plane_f = prt._plane_grid(oc.plane_size_m, oc.plane_resolution)
+    plane_v, plane_f = prt.plane_grid(oc.plane_size_m, oc.plane_resolution)
     base = np.array([1.0, 0.0, -0.2])
     cam = Intrinsics(64, 48, 60.0, 60.0, 31.5, 23.5)
     renderer = render.Renderer(cam, backend="numba")
@@ -68,16 +72,16 @@ def main() -> int:
     f = frames[0]
     # A writable mask, as mark_reliable's (frames hold read-only arrays: numba compiles another
     # specialisation for those).
-    *sums, _ = _frame_pair_sums(em, f.depth_m, f.known.copy(), intr, f.T_world_from_cam, f.rgb,
-                                cfg.pair_max_depth_diff_m, threads=cfg.pair_threads)
-    _ccm_from_sums(*sums, cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=1, max_condition=DEFAULT_MAX_CONDITION,
+    *sums, _ = frame_pair_sums(em, f.depth_m, f.known.copy(), intr, f.T_world_from_cam, f.rgb,
+                               cfg.pair_max_depth_diff_m, threads=threads)
+    ccm_from_sums(*sums, cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=1, max_condition=DEFAULT_MAX_CONDITION,
                    noise_std=None, ridge=DEFAULT_RIDGE)
     # 3. The SH projection, then the tracker on changes logged as the update logs them (raster
     # order; new data and changed colours), without the update.
     em.valid[:, ::3] = False
     tracker = IncrementalProjection(5)
     tracker.coefficients(em)  # the first call projects the whole map and starts the log
-    log = em._changes
+    log = em.change_log
     idx = np.arange(0, em.height * em.width, 7, dtype=np.int64)
     log.idx[:len(idx)] = idx
     log.old[:len(idx)] = em.radiance_planes.reshape(3, -1)[:, idx].T
@@ -92,8 +96,9 @@ def main() -> int:
     for frame in frames:
         T = frame.T_world_from_cam
         flags = np.zeros((12, 16), np.uint8)  # the edge margin's dilated mask
-        pts, colours, fill_only = _frame_samples(frame.depth_m, frame.known, intr, T, frame.rgb, flags, np.eye(3))
-        update(em, pts, colours, T.translation, 14.0, cfg.update, fill_only, SeenDepth(frame.depth_m, frame.known, intr, T))
+        pts, colours, fill_only = frame_samples(frame.depth_m, frame.known, intr, T, frame.rgb, flags, np.eye(3))
+        update(em, pts, colours, T.translation, 14.0, cfg.update, fill_only, SeenDepth(frame.depth_m, frame.known, intr, T),
+               threads=threads)
     return 0
 
 

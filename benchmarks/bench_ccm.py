@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import colour as colour_science  # noqa: E402
 
 from benchmarks.common import print_table, time_it  # noqa: E402
-from rgbd_envmap.colour import _ccm_sums, apply_ccm, estimate_ccm  # noqa: E402
+from rgbd_envmap.colour import apply_ccm, ccm_sums, estimate_ccm  # noqa: E402
 
 
 def _numpy_normal(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, float]:
@@ -103,7 +103,7 @@ def main() -> None:
     slow = max(10, r // 10)
     rows = {
         f"estimate_ccm least_squares ({n} pairs)": time_it(lambda: estimate_ccm(src, dst), r, warmup=3),
-        "  numba sums only": time_it(lambda: _ccm_sums(src, dst, 1.0), r, warmup=3),
+        "  numba sums only": time_it(lambda: ccm_sums(src, dst, 1.0), r, warmup=3),
         "numpy normal equations + MSE": time_it(lambda: _numpy_normal(src, dst), slow),
         "numpy normal equations + MSE, tuned": time_it(lambda: _numpy_tuned(src, dst), r, warmup=3),
         "numpy lstsq + MSE": time_it(lambda: _numpy_lstsq(src, dst), slow),

@@ -9,24 +9,18 @@ written by ``rgbd-envmap simulate``), each turned into its RGB-D frame as the pi
 before. Rows: ``denoise_frame`` as ``Pipeline._depth_step`` calls it (``TangoIngestConfig``'s
 ``denoise_half_window``, 2: 5×5), ``denoise_depth`` alone, and the other specialised window (3×3).
 
-``--baseline PATH`` loads another version of ``rgbd_envmap/depth/denoise.py`` (e.g. the last commit's,
-``git show HEAD:rgbd_envmap/depth/denoise.py > /tmp/denoise_head.py``), checks that its output is bit
-for bit the current one on every frame and window, and times both in the same loop, alternating call
-by call (which goes first alternates too), so that both see the same load on the shared machine.
+``--baseline PATH`` loads another version of the denoiser, a module with ``denoise_frame`` and
+``denoise_depth`` (e.g. the last commit's ``rgbd_envmap/depth/denoise.py``, ``git show
+HEAD:rgbd_envmap/depth/denoise.py > /tmp/denoise_head.py``; its kernels come from the module it imports
+them from, so to time a kernel change, load a file that holds the old kernels), checks that its output
+is bit for bit the current one on every frame and window, and times both in the same loop,
+alternating call by call (which goes first alternates too), so that both see the same load on the
+shared machine.
 Each row reports wall-clock median / p95 and the median *thread CPU time*, which other jobs disturb
 much less. ``--pipeline`` also replays the whole session through ``Pipeline`` (rendering off), its
 "Denoise depth" stage taking the current and the baseline ``denoise_frame`` in turn, depth frame by
 depth frame (their outputs being bit for bit equal, the run is the same as with either): that stage's
 times and the depth-frame totals per version, in the pipeline's own cache and load conditions.
-
-Last run: ``python benchmarks/bench_denoise.py --baseline OLD.py --frames 100 --repeats 400 --pipeline``
-with OLD.py the version before the 3×3 kernel (shared 2-core box): bit for bit on all 100 depth
-frames of the session, 3×3 and 5×5; ``denoise_frame`` 3×3 0.76 → 0.15 ms median (p95 0.84 → 0.18,
-thread CPU 0.76 → 0.15), ``denoise_depth`` 0.71 → 0.15 ms, 5×5 1.81 → 1.67 ms (the frame's copies
-only); in the pipeline's replay "Denoise depth" 1.05 → 0.19 ms median (p95 1.43 → 0.24).
-5×5 kernel (2026-12-01; ``--baseline`` the version before it, ``--repeats 300``): bit for bit,
-``denoise_frame`` 5×5 1.49 → 0.30 ms median (thread CPU 1.49 → 0.30), 3×3 0.195 → 0.200 ms (shared
-helpers; noise).
 """
 
 from __future__ import annotations

@@ -8,11 +8,12 @@ The merger is warmed up on them, then every row is timed on the steady state, cy
 frames forwards and backwards so that each step warps between neighbouring poses.
 
 Rows ``KinectMerger.step`` are the per-frame cost (the speed target: ≤ 8 ms median on one thread);
-the part rows call the same kernels with the merger's workspace; "pure" rows call the public
+the part rows call the same kernels (:mod:`rgbd_envmap._kernels.kinect`) with the merger's workspace; "pure" rows call the public
 functions, which allocate their scratch on every call.
 
 ``--baseline PATH`` loads another version of ``rgbd_envmap/ingest/kinect.py`` (e.g. the last commit's,
-``git show HEAD:rgbd_envmap/ingest/kinect.py > /tmp/kinect_head.py``) and times its
+``git show HEAD:rgbd_envmap/ingest/kinect.py > /tmp/kinect_head.py``; a version that imports its
+kernels from ``rgbd_envmap._kernels.kinect`` runs the current kernels) and times its
 ``KinectMerger.step`` in the same loop as the current one, alternating call by call on the same frames,
 so that both see the same load; its parts are timed too if it has the kernels of the version before
 the one-pass warp. Reference rows: ``cv2.warpFrame`` (a point
@@ -40,6 +41,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import time_it  # noqa: E402
+from rgbd_envmap._kernels import kinect as KK  # noqa: E402
 from rgbd_envmap.ingest import kinect as K  # noqa: E402
 from rgbd_envmap.types import RigidTransform  # noqa: E402
 from sim.kinect import KinectSimulator  # noqa: E402
@@ -175,7 +177,7 @@ def main() -> None:
     E_next = np.zeros_like(ws.E)
 
     def warp():
-        K._warp_kernel(m._depth, E_prev, m._weight, R, t, rays, use_table, rx, ry, rx32, ry32, camv, dist,
+        KK.warp_kernel(m._depth, E_prev, m._weight, R, t, rays, use_table, rx, ry, rx32, ry32, camv, dist,
                        has_dist, cfg.near_m, ws.zw, ws.s_t, ws.s_z, ws.s_w)
 
     def window():
@@ -185,7 +187,7 @@ def main() -> None:
     near = window()
 
     def merge_normals():
-        return K._merge_normals(ws.zw, f2.depth_m, f2.known, near, np.float32(cfg.max_weight),
+        return KK.merge_normals(ws.zw, f2.depth_m, f2.known, near, np.float32(cfg.max_weight),
                                 np.float32(cfg.threshold), np.float32(cfg.threshold_abs_m), rays, use_table, rx32,
                                 ry32, k2s, k2d, E_next)
 

@@ -2,7 +2,7 @@
 
     python benchmarks/bench_metrics.py [--repeats N] [--json PATH]
 
-Inputs: 1000×2000×3 float32 maps (the pipeline's EM size, DESIGN.md §4 stage 6), without a mask
+Inputs: 1000×2000×3 float32 maps (the pipeline's EM size, docs/design/overview.md, stage 6), without a mask
 and with a random mask of ~90 % valid pixels. Beside the library it times ``whole-map numpy``: the
 same formulas written with whole-map float64 temporaries (the straightforward numpy version), to show
 what the library's cache-sized row blocks buy. Its results are checked against the library before

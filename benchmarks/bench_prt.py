@@ -1,4 +1,4 @@
-"""Time the PRT stage (paper 003 §7.1, DESIGN.md §4 stage 9): per-frame shading and shadow alpha, and
+"""Time the PRT stage (paper 003 §7.1; docs/design/overview.md, stage 9): per-frame shading and shadow alpha, and
 the one-off costs (object load, transfer precompute, shadow plane, cache hits).
 
     python benchmarks/bench_prt.py [--repeats N] [--precompute-repeats N] [--object bunny] [--session-map NPZ] [--json PATH]
@@ -10,7 +10,7 @@ object load, ``compute_transfer`` of the whole object (1024 directions, 5 bands)
 (48×48 on 0.5 m), and ``load_or_compute`` hitting the cache. BLAS and numba are held to one thread;
 open3d's ray casting uses every core (two here).
 
-Session rows: the pipeline's "Shade object (PRT)" stage as ``Pipeline._shade`` runs it (``shade`` of the
+Session rows: the pipeline's "Shade object (PRT)" stage as the pipeline runs it (``shade`` of the
 5-band transfer into a reused buffer, then ``shadow_alpha`` of the 48×48 plane), with the 5-band SH
 coefficients of the map captured by the default session (``runs/default/envmap.npz``, written by
 ``rgbd-envmap simulate``; random coefficients when absent).
@@ -53,7 +53,7 @@ def session_rows(T5: np.ndarray, obj, plane, session_map: Path, repeats: int) ->
     buffers = [np.empty((len(T5), 3), np.float32) for _ in range(2)]
     state = {"i": 0}
 
-    def stage():  # Pipeline._shade: two output buffers swapped per call, then the plane's alpha
+    def stage():  # as the pipeline shades: two output buffers swapped per call, then the plane's alpha
         state["i"] ^= 1
         prt.shade(T5, L, obj.albedo, out=buffers[state["i"]])
         prt.shadow_alpha(plane, L)

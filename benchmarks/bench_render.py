@@ -1,4 +1,4 @@
-"""Time offscreen rasterisation and compositing (paper 003 §7.2, DESIGN.md §4 stage 10; paper Table 1
+"""Time offscreen rasterisation and compositing (paper 003 §7.2; docs/design/overview.md, stage 10; paper Table 1
 "Render frame" 20.7 ms; this project's target ≤ 15 ms median for rasterise + composite at 960×540).
 
     python benchmarks/bench_render.py [--repeats N] [--json PATH] [--backends numba,pyrender]
@@ -27,6 +27,8 @@ import os
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ[_var] = "1"
+# pyrender's stock renderer below imports OpenGL itself: a headless platform (as render.gl chooses it)
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import argparse
 import itertools

@@ -1,4 +1,4 @@
-"""Time the SH stage (paper 003 §7.1, DESIGN.md §4 stage 8) on 2000×1000 maps, old vs new side by side.
+"""Time the SH stage (paper 003 §7.1; docs/design/overview.md, stage 8) on 2000×1000 maps, beside a baseline.
 
     python benchmarks/bench_sh.py [--repeats N] [--json PATH] [--figure PATH]
 
@@ -10,18 +10,17 @@ variables are set before numpy is imported).
 Cases:
 
 - ``project_equirect`` of a float32 (H, W, 3) C-contiguous map and of the (H, W, 3) view of planar
-  (3, H, W) storage (``EnvironmentMap.radiance``), and ``project_planar``; the previous
-  implementation (commit 3cae7f7, kept below verbatim) beside each.
+  (3, H, W) storage (``EnvironmentMap.radiance``), and ``project_planar``; beside each a baseline
+  ("old": a BLAS formulation over a filled copy of the map, kept below).
 - With missing pixels (the stage-8 fill): 3 % missing in blobs and thin cracks (``realistic_mask``),
   the same plus a missing polar cap (the top 15 % of rows, ceiling never seen), and 5 % i.i.d.
 - The fill alone (``fill_missing``; the new one builds a filled copy only for this function, the
   projection fills row by row) and the new fill plan alone.
-- The separable projection with BLAS on planar storage, (3H, W) @ (W, 2n − 1) float32 (no fill),
-  the formulation the issue measured at about 3 ms.
+- The separable projection with BLAS on planar storage, (3H, W) @ (W, 2n − 1) float32 (no fill).
 - The projection at 1 … 8 bands; ``basis`` and ``irradiance`` of 35k normals; ``select_bands`` for
   35k vertices × 8 bands from the raw float32 transfer and from a precomputed ``TransferGram``.
 
-The issue's target: median ≤ 3 ms for the all-valid projection at 5 bands.
+Target: median ≤ 3 ms for the all-valid projection at 5 bands.
 """
 
 from __future__ import annotations
@@ -98,7 +97,7 @@ def _old_tables(height: int, width: int, bands: int):
     m = np.arange(-(n - 1), n)
     trig = np.where(m[:, None] < 0, np.sin(np.abs(m)[:, None] * phi), np.cos(m[:, None] * phi))
     K = np.kron(trig.T, np.eye(3)).astype(np.float32)
-    leg = sh._legendre_scaled(np.cos(theta), n)
+    leg = sh.legendre(np.cos(theta), n)
     m_of_k = np.concatenate([np.arange(-l, l + 1) for l in range(n)])
     leg *= np.sin(theta)[:, None] ** np.abs(m_of_k)[None, :]
     row_w = leg * equirect_solid_angles(height, width)[:, :1]
@@ -266,7 +265,7 @@ def main() -> None:
     cases["old: fill_missing 3%"] = lambda: _old_fill_kernel(radiance, real, sh.FILL_RADIUS_PX)
     cases["new: fill_missing 3%"] = lambda: sh.fill_missing(radiance, real)
     for name, m in masks.items():
-        cases[f"new: fill plan only, {name}"] = lambda m=m: sh._plan(m, sh.FILL_RADIUS_PX)
+        cases[f"new: fill plan only, {name}"] = lambda m=m: sh.fill_plan(m, sh.FILL_RADIUS_PX)
     rows = round_robin(cases, r)
     print(f"\n2000×1000, 5 bands, one thread; {r} round-robin rounds after 2 warm-up calls")
     _print(rows)

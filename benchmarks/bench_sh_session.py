@@ -10,9 +10,10 @@ state in the same run, this script times the full ``sh.project_planar`` (plan th
 missing pixel, project every row) and checks that both give the same coefficients. Prints median /
 p95 of both, the pixels written per frame and the largest relative difference.
 
-``--baseline`` compares two versions of the tracker instead: the file is another ``sh.py`` (e.g.
-``git show HEAD:rgbd_envmap/sh.py > /tmp/sh_old.py``), whose ``IncrementalProjection`` follows
-the same map beside the current one, both fed the same change log each frame, in alternating order
+``--baseline`` compares two versions of the tracker instead: the file is a module that defines an
+``IncrementalProjection`` (e.g. ``git show REV:rgbd_envmap/sh/incremental.py > /tmp/sh_old.py``,
+with its kernels import pointed at a copy of that revision's ``rgbd_envmap/_kernels/sh_incremental.py``
+to compare kernels too), whose ``IncrementalProjection`` follows the same map beside the current one, both fed the same change log each frame, in alternating order
 (the machine is shared and noisy: side by side in one process is the only fair comparison), over
 ``--passes`` replays of the session; also prints on how many frames the two gave bit-identical
 coefficients and their largest relative difference.
@@ -109,7 +110,7 @@ def compare(log: SessionLog, baseline: Path, passes: int) -> None:
     for name in ("baseline", "current"):
         t = np.array(times[name])
         d = max(x[name] for x in diffs)
-        print(f"  {name:8s} ({baseline if name == 'baseline' else 'rgbd_envmap/sh.py'}): median {np.median(t):.2f} ms, "
+        print(f"  {name:8s} ({baseline if name == 'baseline' else 'rgbd_envmap.sh'}): median {np.median(t):.2f} ms, "
               f"p95 {np.percentile(t, 95):.2f} ms over {len(t)} frames; "
               f"largest relative difference from project_planar {d:.2e}")
     same = sum(x["identical"] for x in diffs)
@@ -121,7 +122,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--session", type=Path, default=Path("runs/default/session"))
     ap.add_argument("--every", type=int, default=1, help="time the full projection every N depth frames")
-    ap.add_argument("--baseline", type=Path, help="another sh.py to time side by side with the current one")
+    ap.add_argument("--baseline", type=Path, help="a module defining IncrementalProjection, timed beside the current one")
     ap.add_argument("--passes", type=int, default=3, help="replays of the session with --baseline")
     args = ap.parse_args()
     log = SessionLog.open(args.session)

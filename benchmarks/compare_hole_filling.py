@@ -1,6 +1,6 @@
 """Compare the hole-filling methods on simulated ToF frames: time per frame and depth error.
 
-    python benchmarks/compare_hole_filling.py [--packets N] [--doc docs/hole_filling.md]
+    python benchmarks/compare_hole_filling.py [--packets N] [--doc docs/design/hole_filling.md]
 
 Runs the simulator's default scene ("office") and trajectory ("orbit") for N depth packets (one every
 200 ms), rasterises each point cloud into the 224×172 depth image with ``known`` = confidence ≥ 0.7

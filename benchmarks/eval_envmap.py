@@ -2,7 +2,7 @@
 the RGB-D environment map").
 
     python benchmarks/eval_envmap.py [--duration 20] [--colour-size 960x540] [--em-height 1000]
-                                     [--out docs/envmap_eval.md] [--save-npz DIR]
+                                     [--out docs/studies/envmap_eval.md] [--save-npz DIR]
 
 Run 1, the default orbit with auto-exposure and white balance on: the same ingested frames feed
 three captures: colour correction on (the paper), correction off, and correction on with the paper's
@@ -29,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from rgbd_envmap.capture import CaptureConfig, EnvironmentCapture  # noqa: E402
+from rgbd_envmap.pipeline.capture import CaptureConfig, EnvironmentCapture  # noqa: E402
 from rgbd_envmap.envmap import UpdateConfig  # noqa: E402
 from rgbd_envmap.ingest.tango import decode_colour, ingest_tango  # noqa: E402
 from rgbd_envmap.metrics import coverage_of, ws_psnr  # noqa: E402

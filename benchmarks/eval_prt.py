@@ -1,5 +1,5 @@
-"""PRT shading of the virtual object against a Monte Carlo reference with visibility (paper 003 §7.1,
-DESIGN.md §4 stage 9).
+"""PRT shading of the virtual object against a Monte Carlo reference with visibility (paper 003 §7.1;
+docs/design/overview.md, stage 9).
 
     python benchmarks/eval_prt.py [--object bunny] [--n-vertices 600] [--ref-rays 16384] [--n-dirs 1024]
                                   [--em-height 1000] [--no-precompute-timing] [--figures] [--json PATH]

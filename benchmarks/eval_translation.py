@@ -1,6 +1,6 @@
 """EM translation, paper 003 Fig. 9 protocol: depth-aware (§6.2) against Gardner et al. 2017.
 
-    python benchmarks/eval_translation.py [--duration 20] [--em-height 500] [--out docs/translation.md]
+    python benchmarks/eval_translation.py [--duration 20] [--em-height 500] [--out docs/studies/translation_fig9.md]
 
 The session's frames are ingested once. A capture at the virtual object's position builds the map
 that gets translated; for every position along 50 cm of −x (every 1 cm; the open side of the panel
@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.eval_envmap import ingested_frames  # noqa: E402
-from rgbd_envmap.capture import CaptureConfig, EnvironmentCapture  # noqa: E402
+from rgbd_envmap.pipeline.capture import CaptureConfig, EnvironmentCapture  # noqa: E402
 from rgbd_envmap.envmap import translate  # noqa: E402
 from rgbd_envmap.metrics import coverage_of, sphere_correlation  # noqa: E402
 from sim.colour_camera import ColourCameraConfig  # noqa: E402

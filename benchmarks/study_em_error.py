@@ -1,16 +1,16 @@
 """Why the captured environment map of the default session stops near 25 dB WS-PSNR: an error
-budget, a resolution bound, and prototype fixes measured side by side (docs/em_error_study.md).
+budget, a resolution bound, and prototype fixes measured side by side (docs/studies/em_error_study.md).
 
     python benchmarks/study_em_error.py [--duration 20] [--colour-size 960x540] [--em-height 1000]
                                         [--cache /tmp/em_study] [--out /tmp/em_study/results.md]
                                         [--figures docs/figures]
 
-``--out`` writes every table the run prints (Markdown); docs/em_error_study.md is written by hand
+``--out`` writes every table the run prints (Markdown); docs/studies/em_error_study.md is written by hand
 from them (do not point ``--out`` at it). The cache is ~320 MB for the default session.
 
 One simulated session (the default orbit, seed 0, as ``benchmarks/eval_envmap.py``) is ingested once
 and kept under ``--cache`` (frames, colour images, per-pixel ground truth of the ToF rays); every
-capture below replays those frames. The map update is a copy of ``rgbd_envmap.envmap.update``'s
+capture below replays those frames. The map update is a copy of ``rgbd_envmap.envmap.map_update``'s
 kernel (the committed version) with instrumentation (which frame, rule and frame pixel last wrote
 each map pixel) and the prototype options; the first table checks that the copy reproduces the
 library's map.
@@ -1062,7 +1062,7 @@ def parse_args(argv=None):
 
 def library_capture(session: Session) -> EnvironmentMap:  # noqa: F821
     """The library's EnvironmentCapture (defaults) over the cached frames, to check the copy."""
-    from rgbd_envmap.capture import CaptureConfig, EnvironmentCapture
+    from rgbd_envmap.pipeline.capture import CaptureConfig, EnvironmentCapture
     from rgbd_envmap.types import RGBDFrame
     from rgbd_envmap.envmap import UpdateConfig
     # colour_average=1: the colour replaced, as in the copy (the library averages since 2026-12-01).

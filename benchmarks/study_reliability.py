@@ -1,6 +1,6 @@
 """Study of the depth-discontinuity test of reliability marking (paper 003 §5.2): the authors'
 statistic against the one derived from the ToF noise model. Writes the figures used by
-docs/reliability.md and prints its tables (Markdown).
+docs/design/reliability.md and prints its tables (Markdown).
 
     python benchmarks/study_reliability.py [--trials 20] [--packets 50] [--figures docs/figures]
 

@@ -23,7 +23,8 @@ unreferenced vertices removed, and the winding flipped if the enclosed volume is
 normals). Normals are the normalised sum of the adjacent faces' cross products (area-weighted).
 
 Cache directory: ``cache_dir`` if given, else ``$RGBD_ENVMAP_CACHE``, else ``~/.cache/rgbd-envmap``
-(see :func:`default_cache_dir`); files are written atomically (temporary file + rename).
+(:func:`rgbd_envmap.cache.default_cache_dir`, re-exported here); files are written atomically
+(:func:`rgbd_envmap.cache.atomic_write_bytes`).
 
 References:
     - G. Turk and M. Levoy, "Zippered Polygon Meshes from Range Images", SIGGRAPH 1994 (the bunny scan;
@@ -37,15 +38,14 @@ from __future__ import annotations
 import hashlib
 import io
 import math
-import os
 import tarfile
-import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from rgbd_envmap.cache import atomic_write_bytes, default_cache_dir
 from rgbd_envmap.checks import check_array, check_method, check_positive_int
 from rgbd_envmap.errors import (
     InvalidInputError,
@@ -88,25 +88,6 @@ _NORMAL_TOL = 1e-3
 class AssetNotFoundError(RgbdEnvmapError, FileNotFoundError):
     """A mesh file the asset needs is not on this machine; the message says where it was looked for
     and how to install it."""
-
-
-def default_cache_dir() -> Path:
-    """``$RGBD_ENVMAP_CACHE`` if set and non-empty, else ``~/.cache/rgbd-envmap`` (not created here)."""
-    env = os.environ.get("RGBD_ENVMAP_CACHE", "").strip()
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "rgbd-envmap"
-
-
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600; the cache may be shared between users of a machine
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 # --- the object type ----------------------------------------------------------------------------------
@@ -313,7 +294,7 @@ def _bunny_off_bytes(cache_dir: Path, archive: Path | None) -> tuple[bytes, str]
         except (tarfile.TarError, KeyError, OSError):
             continue
         if data:
-            _atomic_write_bytes(cached, data)
+            atomic_write_bytes(cached, data)
             return data, source if archive is None else f"{path}:{_BUNNY_MEMBER}"
     raise AssetNotFoundError(
         f"bunny: expected the CGAL bunny ({_BUNNY_MEMBER}) in one of {[str(p) for p in candidates]} or "
@@ -345,7 +326,7 @@ def _load_bunny_clean(cache_dir: Path, archive: Path | None) -> tuple[np.ndarray
     v, f = _clean(*_parse_off(data))
     buf = io.BytesIO()
     np.savez(buf, vertices=v, faces=f)
-    _atomic_write_bytes(npz_path, buf.getvalue())
+    atomic_write_bytes(npz_path, buf.getvalue())
     return v, f, source
 
 

@@ -1,6 +1,6 @@
 """Geometry: camera projection with Brown distortion, SE(3) helpers and the equirectangular mapping.
 
-Conventions (docs/CONVENTIONS.md):
+Conventions (docs/reference/conventions.md):
 
 * Camera frames are OpenCV (x right, y down, z forward); pixel centres at integer coordinates.
 * World frame is right-handed with z up.

@@ -42,7 +42,8 @@ import numpy as np
 from rgbd_envmap.errors import InvalidInputError, LogFormatError, RgbdEnvmapError, ShapeError
 from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, RigidTransform
 
-__all__ = ["SessionWriter", "SessionLog", "as_logged", "read_timestamped_table", "format_timestamp", "parse_timestamp", "QUATERNION_NORM_TOL"]
+__all__ = ["SessionWriter", "SessionLog", "as_logged", "read_timestamped_table", "read_tum_trajectory", "format_timestamp",
+           "parse_timestamp", "QUATERNION_NORM_TOL"]
 
 FORMAT, VERSION = "rgbd-envmap-session", 1
 KINDS = ("depth", "colour")
@@ -95,9 +96,15 @@ def read_timestamped_table(path: Path, n_fields: int) -> list[tuple[int, int, li
     return rows
 
 
-def _read_poses(path: Path, kind: str) -> dict[int, RigidTransform]:
-    """TUM trajectory file -> {timestamp_ns: T_world_from_<kind>}."""
-    poses = {}
+def read_tum_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A trajectory in TUM RGB-D format (``timestamp tx ty tz qx qy qz qw`` per line, ``#`` comments):
+    (N,) int64 timestamps in ns, (N, 3) float64 translations and (N, 4) float64 quaternions xyzw as
+    written (their norm within :data:`QUATERNION_NORM_TOL` of 1). Timestamps must increase.
+
+    Raises:
+        LogFormatError: naming the file and line of a malformed, non-finite or non-unit pose.
+    """
+    stamps, values = [], []
     for lineno, ns, fields in read_timestamped_table(path, 8):
         where = f"{path}, line {lineno}"
         try:
@@ -106,10 +113,20 @@ def _read_poses(path: Path, kind: str) -> dict[int, RigidTransform]:
             raise LogFormatError(f"{where}: pose values must be numbers, got {fields}") from None
         if not np.isfinite(v).all():
             raise LogFormatError(f"{where}: pose holds NaN or inf: {fields}")
-        if abs(np.linalg.norm(v[3:]) - 1.0) > QUATERNION_NORM_TOL:
-            raise LogFormatError(f"{where}: quaternion norm {np.linalg.norm(v[3:]):.6g} is not 1")
-        poses[ns] = RigidTransform.from_quaternion(v[:3], v[3:], "world", kind)
-    return poses
+        norm = np.linalg.norm(v[3:])
+        if abs(norm - 1.0) > QUATERNION_NORM_TOL:
+            raise LogFormatError(f"{where}: quaternion norm {norm:.6g} is not 1 (tolerance {QUATERNION_NORM_TOL})")
+        stamps.append(ns)
+        values.append(v)
+    arr = np.array(values, dtype=np.float64).reshape(-1, 7)
+    return np.array(stamps, dtype=np.int64), arr[:, :3], arr[:, 3:]
+
+
+def _read_poses(path: Path, kind: str) -> dict[int, RigidTransform]:
+    """TUM trajectory file -> {timestamp_ns: T_world_from_<kind>}."""
+    stamps, translations, quaternions = read_tum_trajectory(path)
+    return {int(ns): RigidTransform.from_quaternion(t, q, "world", kind)
+            for ns, t, q in zip(stamps, translations, quaternions)}
 
 
 def _pose_line(timestamp_ns: int, T: RigidTransform) -> str:

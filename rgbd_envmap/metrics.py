@@ -5,7 +5,7 @@ over-sampled rows near the poles count no more than the area they represent. The
 :func:`rgbd_envmap.geometry.equirect_solid_angles` (exact, cached per size); this module caches
 nothing of its own.
 
-Conventions (DESIGN.md §3): maps are (H, W) or channels-last (H, W, C), row 0 at the zenith, any
+Conventions (docs/reference/conventions.md): maps are (H, W) or channels-last (H, W, C), row 0 at the zenith, any
 width (W = 2H in the pipeline; the given shape is used as is). ``valid`` masks are (H, W) bool and
 select the pixels that take part; values at invalid pixels are never read (they may be NaN). A NaN or
 infinity at a *valid* pixel is an error (:class:`~rgbd_envmap.errors.NonFiniteError`): missing data

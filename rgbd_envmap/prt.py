@@ -1,5 +1,5 @@
 """Precomputed radiance transfer (PRT): per-vertex transfer vectors with self-visibility, Lambertian
-shading with SH lighting, and the soft-shadow plane (paper 003 §7.1, DESIGN.md §4 stage 9).
+shading with SH lighting, and the soft-shadow plane (paper 003 §7.1; docs/design/overview.md, stage 9).
 
 What is computed. For a vertex x with unit normal n, the transfer vector of a diffuse receiver is
 
@@ -30,7 +30,7 @@ Two estimators (``estimator=``):
 
 Ray origins are offset by ``offset_m`` along the vertex normal (default 1e-5 × the diagonal of the
 bounding box of all geometry: 1.95 µm for the 12 cm bunny) so that a ray does not hit the faces around
-its own vertex; docs/prt.md shows the transfer unchanged over 1e-7 … 1e-4 × the diagonal, brighter
+its own vertex; docs/design/prt.md shows the transfer unchanged over 1e-7 … 1e-4 × the diagonal, brighter
 from 1e-3 on (origins leave the creases).
 
 Cache. :func:`load_or_compute` and :func:`shadow_plane` keep results in ``<cache>/prt/*.npz`` keyed by a
@@ -47,8 +47,11 @@ coefficients raise :class:`NonFiniteError`; a zero-length normal raises :class:`
 (its transfer would be undefined); face indices out of range raise :class:`RangeError`. An empty vertex
 array gives an empty (0, bands²) result; an empty face array means "no self-occlusion". Any
 ``n_dirs`` ≥ 1 is accepted (a tiny one is just a coarse quadrature; with the default estimator the
-unoccluded part stays exact). ``shade`` does not scan the transfer for NaN (the 0.3 ms budget); a NaN
-row gives a NaN colour.
+unoccluded part stays exact). ``shade`` does not scan the transfer for NaN (it runs per colour frame
+and must stay well under a millisecond); a NaN row gives a NaN colour.
+
+The compiled loops are in :mod:`rgbd_envmap._kernels.prt`; what they compute, in plain numpy, in
+:mod:`rgbd_envmap.reference.prt`.
 
 References:
     - P.-P. Sloan, J. Kautz, J. Snyder, "Precomputed Radiance Transfer for Real-Time Rendering in
@@ -71,11 +74,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from rgbd_envmap import sh
-from rgbd_envmap.assets import VirtualObject, _atomic_write_bytes, default_cache_dir
+from rgbd_envmap._kernels import prt as kernels
+from rgbd_envmap.assets import VirtualObject
+from rgbd_envmap.cache import atomic_write_bytes, default_cache_dir
 from rgbd_envmap.checks import check_array, check_method, check_positive_int
 from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError, ShapeError
 
@@ -85,6 +89,7 @@ __all__ = [
     "ShadowPlane",
     "compute_transfer",
     "load_or_compute",
+    "plane_grid",
     "shade",
     "shadow_alpha",
     "shadow_plane",
@@ -146,47 +151,6 @@ def unoccluded_transfer(normals: np.ndarray, bands: int = 5) -> np.ndarray:
 
 
 # --- ray casting --------------------------------------------------------------------------------------
-
-@numba.njit(cache=True)
-def _upper_rays(origins, dirs, cos):  # pragma: no cover - compiled
-    """Rays (origin, direction) for every (vertex, direction) pair with cos > 0, row-major, and the
-    flat index of each pair in ``cos``."""
-    c, N = cos.shape
-    count = 0
-    for i in range(c):
-        for j in range(N):
-            if cos[i, j] > 0.0:
-                count += 1
-    rays = np.empty((count, 6), dtype=np.float32)
-    flat = np.empty(count, dtype=np.int64)
-    r = 0
-    for i in range(c):
-        for j in range(N):
-            if cos[i, j] > 0.0:
-                rays[r, 0] = origins[i, 0]
-                rays[r, 1] = origins[i, 1]
-                rays[r, 2] = origins[i, 2]
-                rays[r, 3] = dirs[j, 0]
-                rays[r, 4] = dirs[j, 1]
-                rays[r, 5] = dirs[j, 2]
-                flat[r] = i * N + j
-                r += 1
-    return rays, flat
-
-
-@numba.njit(cache=True)
-def _blocked_weights(cos, flat, hit, blocked_part):  # pragma: no cover - compiled
-    """(c, N) float32 quadrature weights: cos where a cast ray was blocked (``blocked_part``) or
-    cos where it escaped (otherwise), 0 elsewhere."""
-    c, N = cos.shape
-    w = np.zeros((c, N), dtype=np.float32)
-    for r in range(flat.shape[0]):
-        if (hit[r] != 0) == blocked_part:
-            i = flat[r] // N
-            j = flat[r] - i * N
-            w[i, j] = cos[i, j]
-    return w
-
 
 def _as_mesh(item: object, index: int) -> tuple[np.ndarray, np.ndarray]:
     """An occluder given as an object with .vertices/.faces or as a (vertices, faces) pair."""
@@ -277,7 +241,7 @@ def compute_transfer(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarra
 
     scene = None
     if geometry:
-        import open3d as o3d  # local: importing open3d costs ~0.5 s and only this function needs it
+        import open3d as o3d  # local: importing open3d is slow and only this function needs it
 
         scene = o3d.t.geometry.RaycastingScene()
         for gv, gf in geometry:
@@ -296,10 +260,10 @@ def compute_transfer(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarra
             np.maximum(cos, 0.0, out=cos)
             out[s:e] = cos @ y_w
             continue
-        rays, flat = _upper_rays(origins[s:e], dirs32, cos)
+        rays, flat = kernels.upper_rays(origins[s:e], dirs32, cos)
         hit = scene.test_occlusions(o3d.core.Tensor(rays), nthreads=n_threads).numpy()
-        weight = _blocked_weights(cos, flat, hit.view(np.uint8) if hit.dtype == np.bool_ else hit.astype(np.uint8),
-                                  estimator == "occluded")
+        hit8 = hit.view(np.uint8) if hit.dtype == np.bool_ else hit.astype(np.uint8)
+        weight = kernels.blocked_weights(cos, flat, hit8, estimator == "occluded")
         part = weight @ y_w
         if estimator == "occluded":
             out[s:e] -= part
@@ -341,7 +305,7 @@ def _read_npz(path: Path, names: Sequence[str]) -> dict | None:
 def _write_npz(path: Path, **arrays: np.ndarray) -> None:
     buf = io.BytesIO()
     np.savez(buf, **arrays)
-    _atomic_write_bytes(path, buf.getvalue())
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def _transfer_settings(bands: int, n_dirs: int, seed, estimator: str, offset_m) -> dict:
@@ -433,7 +397,11 @@ class ShadowPlane:
                              f"{self.transfer_with.shape} and {self.transfer_without.shape}")
 
 
-def _plane_grid(size_m: float, resolution: int) -> tuple[np.ndarray, np.ndarray]:
+def plane_grid(size_m: float, resolution: int) -> tuple[np.ndarray, np.ndarray]:
+    """The shadow plane's grid: ``resolution`` × ``resolution`` vertices on z = 0 spanning
+    [−size_m / 2, size_m / 2]² (row-major from (−s/2, −s/2): row j has y = t[j], column i x = t[i]),
+    as (P, 3) float32 vertices and (2 (resolution − 1)², 3) int32 faces, counter-clockwise seen from
+    +z. No checks: :func:`shadow_plane` checks its arguments."""
     t = np.linspace(-size_m / 2, size_m / 2, resolution)
     gx, gy = np.meshgrid(t, t)  # row j: y = t[j]; column i: x = t[i]
     vertices = np.stack([gx.ravel(), gy.ravel(), np.zeros(resolution * resolution)], axis=1).astype(np.float32)
@@ -475,7 +443,7 @@ def shadow_plane(obj: VirtualObject, *, size_m: float | None = None, resolution:
     if not (math.isfinite(size_m) and size_m > 0.0):
         raise RangeError(f"size_m: expected a finite value > 0, got {size_m}")
 
-    vertices, faces = _plane_grid(size_m, resolution)
+    vertices, faces = plane_grid(size_m, resolution)
     up = np.zeros_like(vertices)
     up[:, 2] = 1.0
     without = np.repeat(unoccluded_transfer(up[:1], bands).astype(np.float32), len(vertices), axis=0)
@@ -544,90 +512,18 @@ def shade(transfer: np.ndarray, coeffs: np.ndarray, albedo, *, out: np.ndarray |
     else:
         check_array(out, "out", shape=(T.shape[0], 3), dtype=np.float32)
     # A single-threaded kernel, not BLAS: a (V, 25) × (25, 3) product is too small for threads, and
-    # on a busy 2-core machine OpenBLAS's thread wake-ups took the median from 0.3 ms to 8–10 ms
-    # inside the pipeline (benchmarks/bench_prt.py times both). The weights L_k · albedo / π are
-    # formed in the kernel's caller too: as numpy temporaries they cost 0.05–0.09 ms in the pipeline.
+    # on a busy machine BLAS's thread wake-ups cost many times the product (benchmarks/bench_prt.py
+    # times both). The weights L_k · albedo / π are formed inside the compiled call too, not as numpy
+    # temporaries, whose allocations would cost a good part of the product.
     if L.dtype in _FLOATS and a.dtype in _FLOATS:
-        _shade(T, L, np.broadcast_to(a, (3,)), a.dtype.type(math.pi), K, out)
+        kernels.shade(T, L, np.broadcast_to(a, (3,)), a.dtype.type(math.pi), K, out)
     else:  # integer coefficients or albedo: numpy's promotion rules decide the weights' rounding
         weights = (L[:K] * (np.broadcast_to(a, (3,)) / math.pi)).astype(np.float32)
-        _shade_kernel(T, np.ascontiguousarray(weights.T), K, out)
+        kernels.shade_with_weights(T, np.ascontiguousarray(weights.T), K, out)
     return out
 
 
 _FLOATS = (np.dtype(np.float32), np.dtype(np.float64))
-
-
-@numba.njit(cache=True)
-def _shade_weights(L, albedo, pi, K):  # pragma: no cover - compiled
-    """(3, K) float32 weights L[k, c] · (albedo[c] / π), rounded as numpy's
-    ``(L * (albedo / math.pi)).astype(float32)`` rounds them: ``pi`` has albedo's dtype (numpy divides
-    a float32 albedo by π in float32), products in the wider of the two dtypes. No fastmath here:
-    the division must stay a division."""
-    wt = np.empty((3, K), np.float32)
-    for c in range(3):
-        s = albedo[c] / pi
-        for k in range(K):
-            wt[c, k] = np.float32(L[k, c] * s)
-    return wt
-
-
-@numba.njit(cache=True)
-def _shade(T, L, albedo, pi, K, out):  # pragma: no cover - compiled
-    _shade_kernel(T, _shade_weights(L, albedo, pi, K), K, out)
-
-
-@numba.njit(cache=True, fastmath=True)
-def _shade_kernel(T, wt, K, out):  # pragma: no cover - compiled
-    """out[v] = Σ_k T[v, k] wt[:, k]; ``wt`` is (3, K) contiguous: reading the weights along k (not the
-    (K, 3) table's strided columns) lets the three reductions vectorise (0.32 vs 0.70 ms, bunny)."""
-    for v in range(T.shape[0]):
-        row = T[v]
-        r = np.float32(0.0)
-        g = np.float32(0.0)
-        b = np.float32(0.0)
-        for k in range(K):
-            t = row[k]
-            r += t * wt[0, k]
-            g += t * wt[1, k]
-            b += t * wt[2, k]
-        out[v, 0] = r
-        out[v, 1] = g
-        out[v, 2] = b
-
-
-@numba.njit(cache=True, fastmath=True)
-def _luminance_dots(T, w, out):  # pragma: no cover - compiled
-    """out[p] = Σ_k T[p, k] w[k] in float32 (fastmath: SIMD partial sums)."""
-    K = w.shape[0]
-    for p in range(T.shape[0]):
-        acc = np.float32(0.0)
-        for k in range(K):
-            acc += T[p, k] * w[k]
-        out[p] = acc
-
-
-@numba.njit(cache=True)
-def _alpha_kernel(T_with, T_without, L, lum, tiny_factor):  # pragma: no cover - compiled
-    """:func:`shadow_alpha` after validation: float32 sums like BLAS's (in their own order)."""
-    K = min(T_with.shape[1], L.shape[0])
-    w = np.empty(K, np.float32)
-    for k in range(K):  # luminance of each coefficient, float64 then rounded (as the numpy version)
-        w[k] = np.float32(L[k, 0] * lum[0] + L[k, 1] * lum[1] + L[k, 2] * lum[2])
-    mean_lum = abs(L[0, 0] * lum[0] + L[0, 1] * lum[1] + L[0, 2] * lum[2]) / np.sqrt(4.0 * np.pi)
-    tiny = np.float32(max(tiny_factor * np.pi * mean_lum, 1e-12))  # compared in float32, as numpy did
-    P = T_with.shape[0]
-    e_with = np.empty(P, np.float32)
-    e_without = np.empty(P, np.float32)
-    _luminance_dots(T_with, w, e_with)
-    _luminance_dots(T_without, w, e_without)
-    alpha = np.empty(P, np.float32)
-    for p in range(P):
-        ratio = e_with[p] / e_without[p] if e_without[p] > tiny else np.float32(1.0)
-        a = np.float32(1.0) - ratio
-        a = np.float32(0.0) if a < 0.0 else a  # np.clip(a, 0, 1), NaN (a NaN transfer) passing through
-        alpha[p] = np.float32(1.0) if a > 1.0 else a
-    return alpha
 
 
 def shadow_alpha(plane: ShadowPlane, coeffs: np.ndarray) -> np.ndarray:
@@ -638,9 +534,10 @@ def shadow_alpha(plane: ShadowPlane, coeffs: np.ndarray) -> np.ndarray:
     luminance, |L_00| Y_00, with an absolute floor of 1e-12) the ratio means nothing (no light from
     above, or SH ringing below zero) and alpha is 0.
 
-    One single-threaded pass (float32 sums of float32 transfer × float32 luminance weights); BLAS
-    gemv inside the pipeline cost 0.14 ms for 2304 × 25, mostly call overhead. Its sums associate
-    differently, so alpha differs from a BLAS product by float32 rounding (≤ 1e-6).
+    One single-threaded pass (float32 sums of float32 transfer × float32 luminance weights): for a
+    product this small, a BLAS call's overhead would dominate. Its sums associate differently, so
+    alpha differs from a BLAS or float64 product by float32 rounding (≤ 1e-6;
+    :func:`rgbd_envmap.reference.prt.shadow_alpha` is the float64 statement).
 
     Args:
         plane: :class:`ShadowPlane`. coeffs: (n², 3) finite SH radiance coefficients.
@@ -651,5 +548,5 @@ def shadow_alpha(plane: ShadowPlane, coeffs: np.ndarray) -> np.ndarray:
     if not isinstance(plane, ShadowPlane):
         raise DTypeError(f"plane: expected a ShadowPlane, got {type(plane).__name__}")
     L = _coeffs(coeffs)
-    return _alpha_kernel(plane.transfer_with, plane.transfer_without, L.astype(np.float64, copy=False),
-                         LUMINANCE_WEIGHTS, _ALPHA_TINY)
+    return kernels.shadow_alpha(plane.transfer_with, plane.transfer_without, L.astype(np.float64, copy=False),
+                                LUMINANCE_WEIGHTS, _ALPHA_TINY)

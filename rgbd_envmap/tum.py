@@ -63,7 +63,7 @@ from rgbd_envmap.errors import (
     RangeError,
     RgbdEnvmapError,
 )
-from rgbd_envmap.logs import QUATERNION_NORM_TOL, read_timestamped_table
+from rgbd_envmap.logs import read_timestamped_table, read_tum_trajectory
 from rgbd_envmap.types import Calibration, Intrinsics, RigidTransform
 
 __all__ = [
@@ -239,22 +239,9 @@ def _read_images(root: Path, name: str) -> list[tuple[int, int, Path]]:
 
 def _read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N,) int64 timestamps, (N, 3) translations, (N, 4) unit quaternions xyzw of groundtruth.txt."""
-    stamps, values = [], []
-    for lineno, ns, fields in read_timestamped_table(path, 8):
-        where = f"{path}, line {lineno}"
-        try:
-            v = np.array([float(f) for f in fields])
-        except ValueError:
-            raise LogFormatError(f"{where}: pose values must be numbers, got {fields}") from None
-        if not np.isfinite(v).all():
-            raise LogFormatError(f"{where}: pose holds NaN or inf: {fields}")
-        norm = np.linalg.norm(v[3:])
-        if abs(norm - 1.0) > QUATERNION_NORM_TOL:
-            raise LogFormatError(f"{where}: quaternion norm {norm:.6g} is not 1 (tolerance {QUATERNION_NORM_TOL})")
-        stamps.append(ns)
-        values.append(np.concatenate([v[:3], v[3:] / norm]))
-    arr = np.array(values, dtype=np.float64).reshape(-1, 7)
-    return np.array(stamps, dtype=np.int64), arr[:, :3], arr[:, 3:]
+    stamps, translations, quaternions = read_tum_trajectory(path)
+    unit = np.array([q / np.linalg.norm(q) for q in quaternions], dtype=np.float64).reshape(-1, 4)
+    return stamps, translations, unit
 
 
 def _read_calibration(path: Path) -> Calibration:

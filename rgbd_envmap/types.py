@@ -5,7 +5,7 @@ Array fields are converted to the documented dtype and made read-only on constru
 handed to a stage cannot be changed behind the caller's back. Equality compares arrays element-wise
 (NaN never occurs in a valid instance).
 
-Conventions (docs/CONVENTIONS.md): transforms are ``T_dst_from_src`` 4×4 float64 with
+Conventions (docs/reference/conventions.md): transforms are ``T_dst_from_src`` 4×4 float64 with
 ``p_dst = T_dst_from_src @ p_src``; camera frames are OpenCV (x right, y down, z forward); timestamps
 are integer nanoseconds; depth in images is z-depth in metres.
 """

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up everything a fresh machine lacks, idempotently: Debian packages the stack needs, a virtualenv
-# in .venv with torch 2.13.0 (CPU) installed first, then the project and its dependencies.
+# in .venv, then the project and its dependencies (with the dev extra: torch 2.13.0 (CPU) first).
 # Quick when already done: a stamp keyed by the hash of this file and pyproject.toml skips pip.
 # Source it (". scripts/bootstrap.sh") or run it; it leaves VENV_PY pointing at the venv's python.
 set -euo pipefail
@@ -24,9 +24,10 @@ if [ ${#missing[@]} -gt 0 ]; then
     echo "bootstrap: apt-get install failed; see $LOG" >&2; exit 1; }
 fi
 
-# BOOTSTRAP_EXTRAS: the project's extras to install, "dev" (tests, rerun-sdk) unless the caller says
-# otherwise; the main job asks for none (rerun-sdk and pyarrow are 650 MB, 6 s of a first run). A venv
-# set up with "dev" serves both.
+# BOOTSTRAP_EXTRAS: the project's extras to install (comma-separated), "dev" (tests, rerun-sdk, and
+# torch + kornia as test references) unless the caller says otherwise; the main job asks for none
+# (rerun-sdk and pyarrow are 650 MB, 6 s of a first run; torch 700 MB; none is imported at run time).
+# A venv set up with "dev" serves both.
 extras="${BOOTSTRAP_EXTRAS-dev}"
 stamp_hash="$(cat "$ROOT/scripts/bootstrap.sh" "$ROOT/pyproject.toml" | sha256sum | cut -c1-16)"
 stamp="$VENV/.bootstrap-$stamp_hash-${extras:-base}"
@@ -36,9 +37,14 @@ if [ ! -f "$stamp" ] && [ ! -f "$VENV/.bootstrap-$stamp_hash-dev" ]; then
   # --no-compile: no byte-compiling of every installed module up front (torch alone: 66 → 35 s);
   # Python compiles what is imported, once, on first use.
   {
-    "$VENV/bin/python" -m pip install -q --no-compile --upgrade pip
-    # The CPU build of torch first: an unpinned torch pulled in later would be a multi-GB CUDA build.
-    "$VENV/bin/python" -m pip install -q --no-compile torch==2.13.0
+    # Chained with &&: set -e does not apply inside a list followed by ||, so a failed torch install
+    # would otherwise go on to the project's, and kornia would pull in the CUDA build.
+    "$VENV/bin/python" -m pip install -q --no-compile --upgrade pip &&
+    # The dev extra's kornia needs torch: the CPU build first, pinned; an unpinned torch pulled in by
+    # kornia would be a multi-GB CUDA build. Without the dev extra nothing needs torch.
+    case ",$extras," in
+      *,dev,*) "$VENV/bin/python" -m pip install -q --no-compile torch==2.13.0 ;;
+    esac &&
     "$VENV/bin/python" -m pip install -q --no-compile -e "$ROOT${extras:+[$extras]}"
   } >>"$LOG" 2>&1 || { echo "bootstrap: pip failed; see $LOG" >&2; tail -20 "$LOG" >&2; exit 1; }
   find "$VENV" -maxdepth 1 -name '.bootstrap-*' ! -name ".bootstrap-$stamp_hash-*" -delete  # other versions' stamps

@@ -9,7 +9,7 @@ cd "$ROOT"
 # A first run (no numba cache yet): the pipeline's largest kernels compile on the other core while
 # this job builds the simulator and compiles its own (apps/warmup.py; a fresh 2 s session 78.6 → 62.0 s),
 # each kernel once: both processes lock a kernel while compiling it (apps/compile_once.py).
-if ! compgen -G "$ROOT/rgbd_envmap/__pycache__/envmap._update_kernel*-*.nbi" > /dev/null; then
+if ! compgen -G "$ROOT/rgbd_envmap/_kernels/__pycache__/envmap_update.update_kernel*-*.nbi" > /dev/null; then
   RGBD_ENVMAP_COMPILE_LOCKS="$(mktemp -d)"
   export RGBD_ENVMAP_COMPILE_LOCKS
   "$VENV_PY" -m apps.warmup > /dev/null 2>&1 &

@@ -31,24 +31,24 @@ _LUMA = np.array([0.2126, 0.7152, 0.0722])
 #: evaluating the transfer function per pixel, and 16 bits resolve every 8-bit sRGB step (the
 #: narrowest, near black, is 1/3295 of full scale).
 _LUT_SIZE = 65536
-_SRGB8_LUT = np.round(linear_to_srgb(np.arange(_LUT_SIZE, dtype=np.float64) / (_LUT_SIZE - 1)) * 255.0).astype(np.uint8)
+SRGB8_LUT = np.round(linear_to_srgb(np.arange(_LUT_SIZE, dtype=np.float64) / (_LUT_SIZE - 1)) * 255.0).astype(np.uint8)
 
 
 #: Gaussian noise is drawn from a fixed bank of standard normals at a random offset per frame:
 #: drawing 6 M fresh normals per FullHD frame cost ~50 ms; the bank makes it free, and frames stay
 #: independent enough for a sensor model (the offset is uniform over 2^23 values).
-_NOISE_BANK_SIZE = 1 << 23
+NOISE_BANK_SIZE = 1 << 23
 
 
 @lru_cache(maxsize=1)
-def _noise_bank() -> np.ndarray:
-    return np.random.default_rng(0x5EED).standard_normal(2 * _NOISE_BANK_SIZE, dtype=np.float32)
+def noise_bank() -> np.ndarray:
+    return np.random.default_rng(0x5EED).standard_normal(2 * NOISE_BANK_SIZE, dtype=np.float32)
 
 
 # Serial on purpose: a parallel kernel's OpenMP threads spin after returning and slow the ray cast
 # that follows (open3d runs its own thread pool); this loop is memory-bound anyway.
 @numba.njit(cache=True)
-def _expose_quantise(radiance, gains, shot, read2, noise, lut):  # pragma: no cover - compiled
+def expose_quantise(radiance, gains, shot, read2, noise, lut):  # pragma: no cover - compiled
     n = radiance.shape[0]
     out = np.empty((n, 3), np.uint8)
     top = lut.shape[0] - 1
@@ -165,14 +165,14 @@ def capture_colour(
     hits = raycaster.cast(T_world_from_colour.translation, T_world_from_colour.rotate(dirs), t_s, normals=False)
     radiance = hits.radiance.reshape(intr.height, intr.width, 3)
     n_values = radiance.size
-    if n_values > _NOISE_BANK_SIZE:
+    if n_values > NOISE_BANK_SIZE:
         noise = rng.standard_normal(n_values, dtype=np.float32)
     else:
-        offset = int(rng.integers(0, _NOISE_BANK_SIZE))
-        noise = _noise_bank()[offset:offset + n_values]
-    srgb8 = _expose_quantise(
+        offset = int(rng.integers(0, NOISE_BANK_SIZE))
+        noise = noise_bank()[offset:offset + n_values]
+    srgb8 = expose_quantise(
         hits.radiance, state.gains.astype(np.float32), np.float32(config.shot_noise),
-        np.float32(config.read_noise**2), noise, _SRGB8_LUT,
+        np.float32(config.read_noise**2), noise, SRGB8_LUT,
     ).reshape(intr.height, intr.width, 3)
     s = config.meter_stride
     next_state = state.update(radiance[::s, ::s].reshape(-1, 3).astype(np.float64), config)

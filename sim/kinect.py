@@ -82,12 +82,12 @@ from rgbd_envmap.geometry import pixel_rays
 from rgbd_envmap.tum import TUM_DEFAULT_INTRINSICS
 from rgbd_envmap.types import Calibration, Distortion, Intrinsics, RigidTransform
 from sim.colour_camera import (
-    _NOISE_BANK_SIZE,
-    _SRGB8_LUT,
+    NOISE_BANK_SIZE,
+    SRGB8_LUT,
     AutoExposureState,
     ColourCameraConfig,
-    _expose_quantise,
-    _noise_bank,
+    expose_quantise,
+    noise_bank,
 )
 from sim.raycast import SceneRaycaster
 from sim.scene import FLAG_BITS, Scene
@@ -480,13 +480,13 @@ def _expose(radiance: np.ndarray, state: AutoExposureState, config: ColourCamera
     h, w, _ = radiance.shape
     flat = np.ascontiguousarray(radiance.reshape(-1, 3), dtype=np.float32)
     n_values = flat.size
-    if n_values > _NOISE_BANK_SIZE:
+    if n_values > NOISE_BANK_SIZE:
         noise = rng.standard_normal(n_values, dtype=np.float32)
     else:
-        offset = int(rng.integers(0, _NOISE_BANK_SIZE))
-        noise = _noise_bank()[offset:offset + n_values]
-    srgb8 = _expose_quantise(flat, state.gains.astype(np.float32), np.float32(config.shot_noise),
-                             np.float32(config.read_noise**2), noise, _SRGB8_LUT).reshape(h, w, 3)
+        offset = int(rng.integers(0, NOISE_BANK_SIZE))
+        noise = noise_bank()[offset:offset + n_values]
+    srgb8 = expose_quantise(flat, state.gains.astype(np.float32), np.float32(config.shot_noise),
+                             np.float32(config.read_noise**2), noise, SRGB8_LUT).reshape(h, w, 3)
     s = config.meter_stride
     return srgb8, state.gains, state.update(radiance[::s, ::s].reshape(-1, 3).astype(np.float64), config)
 

@@ -5,7 +5,8 @@ A scene is a list of :class:`SceneObject`; each has a shape (quad, box, cylinder
 ``shiny``, ``dark``) that drive the ToF confidence model, and a timeline (visible interval, radiance
 scale steps such as a lamp dimming). There is no light transport: the radiance *is* what a camera sees.
 
-Scenes are written in YAML under ``sequences/scenes/``; :func:`load_scene` reads one by name or path.
+Scenes are written in YAML under ``sim/data/scenes/`` (package data, installed with the package);
+:func:`load_scene` reads one by name or path.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from rgbd_envmap.errors import InvalidInputError
 
 __all__ = ["Texture", "SceneObject", "Scene", "load_scene", "SCENES_DIR", "FLAG_BITS"]
 
-SCENES_DIR = Path(__file__).resolve().parent.parent / "sequences" / "scenes"
+#: The packaged scenes (``sim/data/scenes/*.yaml``, shipped as package data; see pyproject.toml).
+SCENES_DIR = Path(__file__).resolve().parent / "data" / "scenes"
 
 #: Bit of each sensor flag in the per-hit flag mask.
 FLAG_BITS = {"emissive": 1, "shiny": 2, "dark": 4}
@@ -209,7 +211,7 @@ def scene_from_dict(d: dict) -> Scene:
 
 
 def load_scene(name_or_path: str | Path) -> Scene:
-    """Load a scene by name (a file ``sequences/scenes/NAME.yaml``) or by path."""
+    """Load a scene by name (the packaged ``sim/data/scenes/NAME.yaml``) or by path (anything with a suffix)."""
     path = Path(name_or_path)
     if not path.suffix:
         path = SCENES_DIR / f"{name_or_path}.yaml"

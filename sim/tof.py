@@ -1,6 +1,6 @@
 """Tango-like time-of-flight depth camera: a point cloud with per-point confidence.
 
-Model (DESIGN §5): 224×172 pixels, 58.5°×46.5° field of view, 3-coefficient radial distortion, returns
+Model (docs/design/overview.md, the simulator): 224×172 pixels, 58.5°×46.5° field of view, 3-coefficient radial distortion, returns
 between 0.1 and 4 m, Gaussian range noise of ``noise_rel`` × range (1 %). Confidence in [0, 1] is a
 product of factors, each from a known failure of ToF sensing:
 

@@ -1,6 +1,6 @@
 """Device trajectories: the true pose of the device (its colour camera, OpenCV axes) over time.
 
-Kinds (YAML under ``sequences/trajectories/``):
+Kinds (YAML under ``sim/data/trajectories/``, shipped as package data):
 
 * ``orbit``: the device circles a centre; ``facing: outward`` looks away from it (scanning the room
   from near the virtual object, with a pitch sweep to reach floor and ceiling), ``inward`` looks at it.
@@ -28,7 +28,8 @@ __all__ = [
     "Jitter", "OrbitTrajectory", "WaypointTrajectory", "SequenceTrajectory", "Trajectory", "load_trajectory", "TRAJECTORIES_DIR",
 ]
 
-TRAJECTORIES_DIR = Path(__file__).resolve().parent.parent / "sequences" / "trajectories"
+#: The packaged trajectories (``sim/data/trajectories/*.yaml``, shipped as package data; see pyproject.toml).
+TRAJECTORIES_DIR = Path(__file__).resolve().parent / "data" / "trajectories"
 
 
 @dataclass(frozen=True)
@@ -181,7 +182,7 @@ def trajectory_from_dict(d: dict) -> Trajectory:
 
 
 def load_trajectory(name_or_path: str | Path) -> Trajectory:
-    """Load a trajectory by name (``sequences/trajectories/NAME.yaml``) or by path."""
+    """Load a trajectory by name (the packaged ``sim/data/trajectories/NAME.yaml``) or by path (anything with a suffix)."""
     path = Path(name_or_path)
     if not path.suffix:
         path = TRAJECTORIES_DIR / f"{name_or_path}.yaml"

@@ -3,7 +3,12 @@ tests neither depend on nor write to the user's ~/.cache."""
 
 import os
 
-import pytest
+from apps.process import configure_process
+
+# The suite runs with the apps' process settings (one BLAS and one OpenCV thread), as the CLI does.
+configure_process()
+
+import pytest  # noqa: E402
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -1,4 +1,4 @@
-"""Draw docs/figures/conventions.png, the figure of docs/CONVENTIONS.md.
+"""Draw docs/figures/conventions.png, the figure of docs/reference/conventions.md.
 
 Run from anywhere:  python docs/figures/make_conventions_figure.py
 

@@ -17,13 +17,12 @@ Per depth packet:
 by default, from the two packets' poses, ``inv(T_world_from_colour) @ T_world_from_depth``, which also
 undoes device motion between the depth packet and the nearest colour frame.
 
-The work is numba kernels on one thread, split into passes so that the arithmetic runs as SIMD code:
-both projections of every point in one branch-free pass, then the z-buffer, then the bilinear
-lookups (scatter and gather, scalar). The arithmetic is the same IEEE sequence as one plain
-per-point loop, so the results are bit for bit those of such a loop (tested); projection matches
-:func:`rgbd_envmap.geometry.project_points` and OpenCV (tested). On a 224×172 frame of the default
-session (38,528 points, 960×540 colour) :func:`rgbd_frame_from_packets` takes about 0.65 ms
-(benchmarks/bench_ingest.py, session rows).
+The work is numba kernels on one thread (:mod:`rgbd_envmap._kernels.tango`), split into passes so
+that the arithmetic runs as SIMD code: both projections of every point in one branch-free pass, then
+the z-buffer, then the bilinear lookups (scatter and gather, scalar). The arithmetic is the same IEEE
+sequence as one plain per-point loop, :func:`rgbd_envmap.reference.tango.rgbd_frame_reference`, so
+the results are bit for bit those of that loop (tested); projection matches
+:func:`rgbd_envmap.geometry.project_points` and OpenCV (tested). benchmarks/bench_ingest.py times it.
 
 References:
     Monroy, Hudon, Smolic (2018), §4.1 (RGB-D image), §4.2 (hole filling, colour of filled pixels).
@@ -33,13 +32,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from rgbd_envmap._kernels import tango as kernels
 from rgbd_envmap.checks import check_array, check_method
-from rgbd_envmap.colour import decode_nv21, srgb8_to_linear_lut
+from rgbd_envmap.colour.nv21 import decode_nv21, srgb8_to_linear_lut
 from rgbd_envmap.errors import InvalidInputError
-from rgbd_envmap.geometry import brown_distort, pixel_rays
+from rgbd_envmap.geometry import pixel_rays
 from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, Intrinsics, RGBDFrame, RigidTransform
 
 __all__ = [
@@ -52,6 +51,7 @@ __all__ = [
     "registration_matrix",
     "rgbd_frame_from_packets",
     "colour_filled_pixels",
+    "colour_filled",
     "REGISTRATION_METHODS",
     "TangoIngestResult",
     "ingest_tango",
@@ -76,18 +76,16 @@ class TangoIngestConfig:
     #: max / min above this are flagged (:attr:`TangoIngestResult.across_edges`; None: none). Their
     #: depth lies between a foreground and a background, and the capture projects them only from
     #: inside its trusted sphere, where such a depth error barely moves them as seen from the origin
-    #: (:meth:`rgbd_envmap.capture.EnvironmentCapture.process`; docs/hole_filling.md).
+    #: (:meth:`rgbd_envmap.pipeline.capture.EnvironmentCapture.process`; docs/design/hole_filling.md).
     fill_max_source_ratio: float | None = 1.5
     #: edge-aware plane-fit denoising of the measured depth before anything else uses it
     #: (:func:`rgbd_envmap.depth.denoise.denoise_frame`, a departure from the paper): the half-width
-    #: of its window, or None for the paper's raw depth. 2 (5×5): 28.73 → 29.16 dB map WS-PSNR on
-    #: the default session against 3×3, for 0.30 ms a frame against 0.20 (both have their own
-    #: kernels, benchmarks/bench_denoise.py); 7×7 28.60 dB. Before the map averaged colours the 5×5
-    #: window gained only 0.09 dB over 3×3 (27.68 vs 27.59) and cost 2.3 ms (docs/em_error_study.md).
+    #: of its window, or None for the paper's raw depth. 2 (5×5) gives the best map on the default
+    #: session, ahead of 3×3 and 7×7 (docs/studies/em_error_study.md).
     denoise_half_window: int | None = 2
     #: the denoiser's inlier tolerance and fewest inliers (``tol_rel``, ``min_inliers`` of
     #: :func:`rgbd_envmap.depth.denoise.denoise_frame`; the function's defaults are 0.04 and 6).
-    #: 0.05 with the 5×5 window: +0.13 dB map WS-PSNR (docs/em_error_study.md, third round).
+    #: 0.05 suits the 5×5 window better than the function's 0.04 (docs/studies/em_error_study.md).
     denoise_tol_rel: float = 0.05
     denoise_min_inliers: int = 6
 
@@ -134,268 +132,6 @@ class DepthImage:
     depth_m: np.ndarray
     known: np.ndarray
     point_index: np.ndarray
-
-
-_distort = brown_distort
-
-
-# The per-packet work is split into passes that each do one thing over contiguous arrays, so that the
-# arithmetic passes compile to SIMD code: projection through a camera is branch-free (a rejected point
-# gets an "invalid" marker instead of a `continue`) and reads the (N, 3) points as a flat array (with
-# 2-D indexing LLVM does not vectorise the strided loads). Only the z-buffer and the bilinear lookups,
-# which scatter and gather, stay scalar. All arithmetic is the same IEEE sequence as a plain per-point
-# loop (no fastmath; numpy error model, so no division-by-zero branches), so results are bit-identical
-# to it. Measured on the session frames: 1.7 → 0.6 ms for the whole point cloud → RGB-D kernel work.
-# Things that did not pay: processing the colour pass in L1-sized blocks (0.65 → 0.79 ms), a two-phase
-# bilinear (gather, then SIMD arithmetic: 0.25 → 0.49 ms), numba-level ``inline="always"`` helpers.
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _pixel_of(x, y, z, conf, threshold, camera):  # pragma: no cover - compiled
-    """row · width + col of the pixel nearest the projection of depth-frame point (x, y, z), or −1
-    (confidence < threshold or NaN, non-finite, z ≤ 0, outside the image). Branch-free.
-    ``camera``: :func:`_depth_camera`."""
-    fx, fy, cx, cy, k1, k2, p1, p2, k3, wf, hf, w32 = camera
-    ok = (conf >= threshold) & (z > 0.0) & np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
-    xd, yd = _distort(x / z, y / z, k1, k2, p1, p2, k3)
-    col = np.floor(fx * xd + cx + 0.5)  # the nearest pixel centre
-    row = np.floor(fy * yd + cy + 0.5)
-    ok = ok & (col >= 0.0) & (col < wf) & (row >= 0.0) & (row < hf)  # NaN fails
-    return np.int32(row if ok else 0.0) * w32 + np.int32(col if ok else 0.0) if ok else np.int32(-1)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _texel_of(px, py, pz, camera):  # pragma: no cover - compiled
-    """Where depth-frame point (px, py, pz) falls in a colour image: the flat offset
-    (y0 · width + x0) · 3 of the top-left texel of its bilinear 2×2 (x0 = min(⌊u⌋, width − 2), so the
-    2×2 stays inside) and the weights u − x0, v − y0; offset −1 when the point is behind the camera,
-    non-finite, or projects outside [0, width − 1] × [0, height − 1]. Branch-free.
-    ``camera``: :func:`_colour_camera`."""
-    (r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2, fx, fy, cx, cy, k1, k2, p1, p2, k3,
-     u_max, v_max, x0_max, y0_max, w32) = camera
-    x = r00 * px + r01 * py + r02 * pz + t0
-    y = r10 * px + r11 * py + r12 * pz + t1
-    z = r20 * px + r21 * py + r22 * pz + t2
-    ok = (z > 0.0) & np.isfinite(x) & np.isfinite(y)
-    xd, yd = _distort(x / z, y / z, k1, k2, p1, p2, k3)
-    u = fx * xd + cx
-    v = fy * yd + cy
-    ok = ok & (u >= 0.0) & (u <= u_max) & (v >= 0.0) & (v <= v_max)  # NaN fails
-    u = u if ok else 0.0
-    v = v if ok else 0.0
-    x0 = min(np.int32(u), x0_max)
-    y0 = min(np.int32(v), y0_max)
-    return (y0 * w32 + x0) * np.int32(3) if ok else np.int32(-1), u - x0, v - y0
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _depth_camera(cam, dist, height, width):  # pragma: no cover - compiled
-    return (cam[0], cam[1], cam[2], cam[3], dist[0], dist[1], dist[2], dist[3], dist[4],
-            float(width), float(height), np.int32(width))
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _colour_camera(rot, trans, cam, dist, width, height):  # pragma: no cover - compiled
-    return (rot[0, 0], rot[0, 1], rot[0, 2], rot[1, 0], rot[1, 1], rot[1, 2], rot[2, 0], rot[2, 1], rot[2, 2],
-            trans[0], trans[1], trans[2], cam[0], cam[1], cam[2], cam[3], dist[0], dist[1], dist[2], dist[3], dist[4],
-            float(width - 1), float(height - 1), np.int32(max(width - 2, 0)), np.int32(max(height - 2, 0)),
-            np.int32(width))
-
-
-# Three loops rather than one with "which outputs" flags: with flags LLVM kept the fused loop 25 %
-# slower. Each reads the (N, 3) points as a flat array: with 2-D indexing it does not vectorise.
-
-@numba.njit(cache=True, error_model="numpy")
-def _project_depth(points, confidence, threshold, cam, dist, height, width, pix):  # pragma: no cover - compiled
-    """pix[i] = :func:`_pixel_of` of each point of C-contiguous (N, 3) ``points``."""
-    c = _depth_camera(cam, dist, height, width)
-    flat = points.reshape(-1)
-    for i in range(points.shape[0]):
-        pix[i] = _pixel_of(flat[3 * i], flat[3 * i + 1], flat[3 * i + 2], confidence[i], threshold, c)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _project_colour(points, rot, trans, cam, dist, width, height, off, wu, wv):  # pragma: no cover - compiled
-    """off[i], wu[i], wv[i] = :func:`_texel_of` of each point (``rot``, ``trans``: T_colour_from_depth)."""
-    c = _colour_camera(rot, trans, cam, dist, width, height)
-    flat = points.reshape(-1)
-    for i in range(points.shape[0]):
-        off[i], wu[i], wv[i] = _texel_of(flat[3 * i], flat[3 * i + 1], flat[3 * i + 2], c)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _project_both(points, confidence, threshold, dcam, ddist, height, width, rot, trans, ccam, cdist, cwidth, cheight,
-                  pix, off, wu, wv):  # pragma: no cover - compiled
-    """:func:`_project_depth` and :func:`_project_colour` in one pass over the points."""
-    d = _depth_camera(dcam, ddist, height, width)
-    c = _colour_camera(rot, trans, ccam, cdist, cwidth, cheight)
-    flat = points.reshape(-1)
-    for i in range(points.shape[0]):
-        x = flat[3 * i]
-        y = flat[3 * i + 1]
-        z = flat[3 * i + 2]
-        pix[i] = _pixel_of(x, y, z, confidence[i], threshold, d)
-        off[i], wu[i], wv[i] = _texel_of(x, y, z, c)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _zbuffer(points, pix, height, width):  # pragma: no cover - compiled
-    """(H, W) float32 depth and int32 winning point index (−1: none) of the points at ``pix``; the
-    smallest z wins a shared pixel, the earlier point a tie."""
-    depth = np.zeros((height, width), np.float32)
-    index = np.full((height, width), -1, np.int32)
-    d = depth.reshape(-1)
-    idx = index.reshape(-1)
-    flat = points.reshape(-1)
-    for i in range(pix.shape[0]):
-        p = pix[i]
-        if p >= 0:
-            z = flat[3 * i + 2]
-            if idx[p] < 0 or z < d[p]:
-                d[p] = z
-                idx[p] = i
-    return depth, index
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _bilinear(order, off, wu, wv, image, lut, rgb, seen):  # pragma: no cover - compiled
-    """rgb[k] = bilinear linear colour at the texel of point ``order[k]`` (see :func:`_texel_of`),
-    decoding the four sRGB texels through ``lut`` (float64) before interpolating; zero and
-    ``seen[k]`` False where ``order[k]`` is −1 or the point has no texel."""
-    h, w = image.shape[0], image.shape[1]
-    flat = image.reshape(-1)
-    # Unsigned offsets: no negative-index wraparound code around the twelve loads.
-    du = np.uint64(3 if w > 1 else 0)  # the right / lower neighbour, clamped in a 1-wide image
-    dv = np.uint64(3 * w if h > 1 else 0)
-    one = np.uint64(1)
-    two = np.uint64(2)
-    for k in range(order.shape[0]):
-        i = order[k]
-        o = off[i] if i >= 0 else np.int32(-1)
-        r = np.float32(0.0)
-        g = np.float32(0.0)
-        b = np.float32(0.0)
-        if o >= 0:
-            au = wu[i]
-            av = wv[i]
-            bu = 1.0 - au
-            bv = 1.0 - av
-            a0 = np.uint64(o)
-            a1 = a0 + du
-            c0 = a0 + dv
-            c1 = c0 + du
-            top = bu * lut[flat[a0]] + au * lut[flat[a1]]
-            bottom = bu * lut[flat[c0]] + au * lut[flat[c1]]
-            r = np.float32(bv * top + av * bottom)
-            top = bu * lut[flat[a0 + one]] + au * lut[flat[a1 + one]]
-            bottom = bu * lut[flat[c0 + one]] + au * lut[flat[c1 + one]]
-            g = np.float32(bv * top + av * bottom)
-            top = bu * lut[flat[a0 + two]] + au * lut[flat[a1 + two]]
-            bottom = bu * lut[flat[c0 + two]] + au * lut[flat[c1 + two]]
-            b = np.float32(bv * top + av * bottom)
-        rgb[k, 0] = r
-        rgb[k, 1] = g
-        rgb[k, 2] = b
-        seen[k] = o >= 0
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _depth_image_kernel(points, confidence, threshold, cam, dist, height, width, pix):  # pragma: no cover
-    """:func:`depth_image_from_points` in one call (the scratch ``pix`` is not shared across calls)."""
-    _project_depth(points, confidence, threshold, cam, dist, height, width, pix)
-    return _zbuffer(points, pix, height, width)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _colour_kernel(points, rot, trans, cam, dist, image, lut, off, wu, wv):  # pragma: no cover - compiled
-    """Colour of each point, (rgb (N, 3) float32, seen (N,) bool), in one call."""
-    n = points.shape[0]
-    _project_colour(points, rot, trans, cam, dist, image.shape[1], image.shape[0], off, wu, wv)
-    rgb = np.empty((n, 3), np.float32)
-    seen = np.empty(n, np.bool_)
-    _bilinear(np.arange(n), off, wu, wv, image, lut, rgb, seen)
-    return rgb, seen
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _rgbd_kernel(
-    points, confidence, threshold, dcam, ddist, height, width, T_colour_from_depth, ccam, cdist, image, lut, pix, off, wu, wv
-):  # pragma: no cover - compiled
-    """The whole point cloud → RGB-D frame: (raw depth, point index, raw known, depth, known, rgb), all
-    (H, W); ``T_colour_from_depth`` is the 4×4 matrix."""
-    rot = T_colour_from_depth[:3, :3]
-    trans = T_colour_from_depth[:3, 3]
-    _project_both(points, confidence, threshold, dcam, ddist, height, width, rot, trans, ccam, cdist,
-                  image.shape[1], image.shape[0], pix, off, wu, wv)
-    raw, index = _zbuffer(points, pix, height, width)
-    rgb = np.empty((height, width, 3), np.float32)
-    known = np.empty((height, width), np.bool_)
-    _bilinear(index.reshape(-1), off, wu, wv, image, lut, rgb.reshape(-1, 3), known.reshape(-1))
-    depth = np.empty((height, width), np.float32)
-    raw_known = np.empty((height, width), np.bool_)
-    d = depth.reshape(-1)
-    k = known.reshape(-1)
-    r = raw.reshape(-1)
-    rk = raw_known.reshape(-1)
-    i = index.reshape(-1)
-    for p in range(d.shape[0]):
-        d[p] = r[p] if k[p] else np.float32(0.0)
-        rk[p] = i[p] >= 0
-    return raw, index, raw_known, depth, known, rgb
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _filled_kernel(
-    rgb_in, depth_in, known_in, filled_depth, filled_known, rays, rot, trans, cam, dist, image, lut
-):  # pragma: no cover - compiled
-    """:func:`colour_filled_pixels` on (H, W) arrays: known pixels copied, newly filled ones coloured
-    from the point ``ray · filled depth`` (float64), the others keep ``rgb_in`` / unknown / depth 0."""
-    h, w = known_in.shape
-    n = h * w
-    kin = known_in.reshape(-1)
-    kf = filled_known.reshape(-1)
-    m = 0
-    for p in range(n):
-        if kf[p] and not kin[p]:
-            m += 1
-    order = np.empty(m, np.int64)
-    points = np.empty((m, 3))
-    fd = filled_depth.reshape(-1)
-    ray = rays.reshape(-1, 3)
-    j = 0
-    for p in range(n):
-        if kf[p] and not kin[p]:
-            d = fd[p]
-            points[j, 0] = ray[p, 0] * d
-            points[j, 1] = ray[p, 1] * d
-            points[j, 2] = ray[p, 2] * d
-            order[j] = p
-            j += 1
-    off = np.empty(m, np.int32)
-    wu = np.empty(m)
-    wv = np.empty(m)
-    _project_colour(points, rot, trans, cam, dist, image.shape[1], image.shape[0], off, wu, wv)
-    colours = np.empty((m, 3), np.float32)
-    seen = np.empty(m, np.bool_)
-    _bilinear(np.arange(m), off, wu, wv, image, lut, colours, seen)
-    rgb = rgb_in.copy()
-    known = known_in.copy()
-    depth = np.empty((h, w), np.float32)
-    flat_rgb = rgb.reshape(-1, 3)
-    kout = known.reshape(-1)
-    dout = depth.reshape(-1)
-    din = depth_in.reshape(-1)
-    for p in range(n):
-        dout[p] = din[p] if kin[p] else np.float32(0.0)
-    for j in range(m):
-        p = order[j]
-        flat_rgb[p, 0] = colours[j, 0]
-        flat_rgb[p, 1] = colours[j, 1]
-        flat_rgb[p, 2] = colours[j, 2]
-        kout[p] = seen[j]
-        if seen[j]:
-            dout[p] = np.float32(fd[p])
-    return rgb, depth, known
 
 
 #: (intrinsics, (fx, fy, cx, cy), distortion) of the cameras last seen; the frozen Intrinsics is held,
@@ -455,8 +191,8 @@ def _owned_frame(rgb: np.ndarray, depth_m: np.ndarray, known: np.ndarray, T_worl
                  intrinsics: Intrinsics, timestamp_ns: int) -> RGBDFrame:
     """An :class:`RGBDFrame` of arrays a kernel here just allocated, with the shapes and dtypes the
     frame requires, referenced nowhere else: they are made read-only and taken as they are, where
-    ``RGBDFrame.__post_init__`` would copy each twice (``astype`` then a frozen copy; 0.07 ms per
-    224×172 frame, twice per packet). The same object as ``RGBDFrame(...)`` builds (tested)."""
+    ``RGBDFrame.__post_init__`` would copy each twice (``astype`` then a frozen copy), twice per
+    packet. The same object as ``RGBDFrame(...)`` builds (tested)."""
     h, w = intrinsics.height, intrinsics.width
     if not (rgb.shape == (h, w, 3) and rgb.dtype == np.float32 and depth_m.shape == (h, w) and depth_m.dtype == np.float32
             and known.shape == (h, w) and known.dtype == np.bool_):  # never: the kernels allocate these
@@ -482,7 +218,7 @@ def depth_image_from_points(
     _check_index_range(intrinsics, "intrinsics")
     cam, dist = _camera_arrays(intrinsics)
     pts = np.ascontiguousarray(pts)
-    depth, index = _depth_image_kernel(pts, np.ascontiguousarray(conf), float(confidence_threshold), cam, dist,
+    depth, index = kernels.depth_image_kernel(pts, np.ascontiguousarray(conf), float(confidence_threshold), cam, dist,
                                        intrinsics.height, intrinsics.width, _scratch(len(pts))[0])
     return DepthImage(depth, index >= 0, index)
 
@@ -492,7 +228,7 @@ def _sample(points: np.ndarray, T_colour_from_depth: RigidTransform, intr: Intri
     """Bilinear linear colour of C-contiguous (N, 3) points: (rgb (N, 3) float32, seen (N,) bool)."""
     cam, dist = _camera_arrays(intr)
     _, off, wu, wv = _scratch(len(points))
-    return _colour_kernel(points, np.ascontiguousarray(T_colour_from_depth.rotation),
+    return kernels.colour_kernel(points, np.ascontiguousarray(T_colour_from_depth.rotation),
                           np.ascontiguousarray(T_colour_from_depth.translation), cam, dist, img, _lut64(), off, wu, wv)
 
 
@@ -519,7 +255,7 @@ def decode_colour(packet: ColourPacket) -> np.ndarray:
 #: or None]. Both keys are immutable (frozen, read-only matrix) and held here, so identity means equal
 #: inputs. The pipeline needs the registration twice per packet: its matrix in the ingest, the
 #: RigidTransform for the colour of filled pixels. Inverse and product are computed once, and the
-#: RigidTransform (whose checks cost 0.04–0.12 ms) only when asked for.
+#: RigidTransform (whose checks cost more than the product) only when asked for.
 _LAST_REGISTRATION: list[list] = []
 
 
@@ -574,7 +310,7 @@ def rgbd_frame_from_packets(
     dcam, ddist = _camera_arrays(dc)
     ccam, cdist = _camera_arrays(cc)
     pts = np.ascontiguousarray(pts)
-    raw, index, raw_known, depth, known, rgb = _rgbd_kernel(
+    raw, index, raw_known, depth, known, rgb = kernels.rgbd_kernel(
         pts, np.ascontiguousarray(conf), float(config.confidence_threshold), dcam, ddist, dc.height, dc.width,
         m, ccam, cdist, np.ascontiguousarray(img), _lut64(), *_scratch(len(pts)),
     )
@@ -593,21 +329,21 @@ def colour_filled_pixels(
     """A new frame with the hole-filled depth, whose newly known pixels take the colour seen at the 3-D
     point of their estimated depth. Pixels known before keep depth and colour unchanged; filled pixels
     whose point the colour camera does not see stay unknown."""
-    return _colour_filled(frame, filled_depth_m, filled_known, srgb8, T_colour_from_depth.matrix, colour_intrinsics)
+    return colour_filled(frame, filled_depth_m, filled_known, srgb8, T_colour_from_depth.matrix, colour_intrinsics)
 
 
-def _colour_filled(frame: RGBDFrame, filled_depth_m: np.ndarray, filled_known: np.ndarray, srgb8: np.ndarray,
-                   colour_from_depth: np.ndarray, colour_intrinsics: Intrinsics) -> RGBDFrame:
-    """:func:`colour_filled_pixels` with the registration as a (4, 4) matrix: the pipeline has the
-    matrix from :func:`rgbd_frame_from_packets` and skips building a checked ``RigidTransform``
-    (0.1 ms a depth frame)."""
+def colour_filled(frame: RGBDFrame, filled_depth_m: np.ndarray, filled_known: np.ndarray, srgb8: np.ndarray,
+                  colour_from_depth: np.ndarray, colour_intrinsics: Intrinsics) -> RGBDFrame:
+    """:func:`colour_filled_pixels` with the registration as a (4, 4) ``T_colour_from_depth`` matrix
+    (:func:`registration_matrix`): the pipeline has the matrix from the ingest and skips building a
+    checked ``RigidTransform`` every depth frame. The matrix is not checked."""
     h, w = frame.intrinsics.height, frame.intrinsics.width
     depth = check_array(filled_depth_m, "filled_depth_m", shape=(h, w), dtype="float")
     known = check_array(filled_known, "filled_known", shape=(h, w), dtype="bool")
     img = check_array(srgb8, "srgb8", shape=(colour_intrinsics.height, colour_intrinsics.width, 3), dtype=np.uint8)
     _check_index_range(colour_intrinsics, "colour_intrinsics", 3)
     cam, dist = _camera_arrays(colour_intrinsics)
-    rgb, out_depth, known_after = _filled_kernel(
+    rgb, out_depth, known_after = kernels.filled_kernel(
         frame.rgb, frame.depth_m, frame.known, np.ascontiguousarray(depth), np.ascontiguousarray(known),
         pixel_rays(frame.intrinsics), np.ascontiguousarray(colour_from_depth[:3, :3]),
         np.ascontiguousarray(colour_from_depth[:3, 3]), cam, dist, np.ascontiguousarray(img), _lut64(),

@@ -3,16 +3,15 @@
 import numpy as np
 
 from apps.warmup import main
-from rgbd_envmap import envmap, render, sh
-from rgbd_envmap.capture import CaptureConfig, EnvironmentCapture
+from rgbd_envmap import sh
+from rgbd_envmap._kernels import envmap_pairs, envmap_update, raster, sh_incremental
+from rgbd_envmap.pipeline.capture import CaptureConfig, EnvironmentCapture
 from rgbd_envmap.geometry import look_at
 from rgbd_envmap.types import Intrinsics, RGBDFrame
 
-# The update's kernel for the default two threads (the one-thread kernel where numba has one thread).
-TWO = envmap._threads(2) == 2
-KERNELS = {"update": envmap._update_kernel_2t if TWO else envmap._update_kernel,
-           "pairs": envmap._frame_pair_sums_2t if TWO else envmap._frame_pairs_kernel, "samples": envmap._frame_samples_kernel,
-           "sh changes": sh._apply_changes, "raster": render._raster_mesh}
+KERNELS = {"update": envmap_update.update_kernel, "pairs": envmap_pairs.frame_pair_sums_kernel,
+           "samples": envmap_pairs.frame_samples_kernel,
+           "sh changes": sh_incremental.apply_changes, "raster": raster.raster_mesh}
 
 
 def test_warmup_compiles_what_the_capture_and_sh_tracker_then_use():

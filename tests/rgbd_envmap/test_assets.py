@@ -16,6 +16,7 @@ import pytest
 import trimesh
 
 from rgbd_envmap import assets
+from rgbd_envmap.cache import atomic_write_bytes, default_cache_dir
 from rgbd_envmap.errors import (
     InvalidInputError,
     NonFiniteError,
@@ -231,6 +232,16 @@ def test_default_cache_dir(monkeypatch, tmp_path):
     assert assets.default_cache_dir() == tmp_path
     monkeypatch.setenv("RGBD_ENVMAP_CACHE", "")
     assert assets.default_cache_dir().name == "rgbd-envmap"
+    assert assets.default_cache_dir is default_cache_dir
+
+
+def test_atomic_write_replaces_the_file_and_leaves_no_temporary(tmp_path):
+    path = tmp_path / "sub" / "entry.npz"
+    atomic_write_bytes(path, b"first")
+    atomic_write_bytes(path, b"second")
+    assert path.read_bytes() == b"second"
+    assert path.stat().st_mode & 0o777 == 0o644  # readable by other users of a shared cache
+    assert sorted(p.name for p in path.parent.iterdir()) == ["entry.npz"]
 
 
 @needs_bunny

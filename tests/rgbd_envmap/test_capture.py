@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from rgbd_envmap.capture import CaptureConfig, EnvironmentCapture
+from rgbd_envmap.pipeline.capture import CaptureConfig, EnvironmentCapture
 from rgbd_envmap.geometry import look_at, pixel_rays
 from rgbd_envmap.types import Intrinsics, RGBDFrame, RigidTransform
 from sim.raycast import SceneRaycaster
@@ -57,12 +57,12 @@ def test_the_fit_from_fused_sums_is_estimate_ccm_of_the_collected_pairs(colourfu
     """least_squares and ridge fit from sums accumulated in the pair pass; the colour-science methods
     from the pair arrays. Either way the step carries estimate_ccm's result for the frame's pairs."""
     from rgbd_envmap.colour import estimate_ccm
-    from rgbd_envmap.envmap import _frame_pairs
+    from rgbd_envmap.envmap import frame_pairs
 
     cap = EnvironmentCapture(np.zeros(3), CaptureConfig(height=200, width=400, min_pairs=200, ccm_method=method))
     _step(cap, _frame(colourful_room, look_at([0.0, 0.0, 0.0], [2.0, 0.1, 0.0])))
     frame = _frame(colourful_room, look_at([0.0, 0.0, 0.0], [2.0, 0.2, 0.05]), (1.6, 1.0, 0.7), 1)
-    src, dst = _frame_pairs(cap.em, frame.depth_m, frame.known, INTR, frame.T_world_from_cam, frame.rgb, 0.01)
+    src, dst = frame_pairs(cap.em, frame.depth_m, frame.known, INTR, frame.T_world_from_cam, frame.rgb, 0.01)
     expected = estimate_ccm(src, dst, method=method, min_pairs=200)
     step = _step(cap, frame)
     assert step.n_pairs == len(src) > 1000 and step.ccm.accepted == expected.accepted

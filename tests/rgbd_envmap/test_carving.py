@@ -160,15 +160,17 @@ def test_bad_evidence_is_refused():
 
 @pytest.mark.parametrize("distortion", [Distortion(), Distortion(k1=0.2, k2=-0.05, p1=0.01, p2=-0.02, k3=0.01)])
 def test_row_carving_tests_equal_the_per_pixel_test(distortion):
-    """The update tests a row's candidates together (envmap._carve_tests: gather, a vectorised
+    """The update tests a row's candidates together (the kernels' _carve_tests: gather, a vectorised
     projection, lookups); it must decide exactly as _is_free does pixel by pixel, for stored points
     in the image, outside it, behind the camera, at the poles and across the seam, and with depths
     that are 0, NaN or huge."""
-    from rgbd_envmap.envmap import _carve_tests, _is_free, _seen_arrays, _trig_tables
+    from rgbd_envmap._kernels.envmap_update import _carve_tests, _is_free
+    from rgbd_envmap.envmap.map_update import _seen_arrays
+    from rgbd_envmap.envmap.tables import trig_tables
 
     rng = np.random.default_rng(3)
     h, w = 90, 180
-    rows, cols = _trig_tables(h, w)
+    rows, cols = trig_tables(h, w)
     origin = np.array([0.1, -0.05, 0.02])
     depth = rng.uniform(1.2, 3.0, (48, 64))  # nearer and farther than the stored points
     depth[rng.random((48, 64)) < 0.02] = np.nan
@@ -201,7 +203,7 @@ def test_seen_arrays_keep_only_measured_finite_positive_depths():
     """_seen_arrays: the frame's depth where known, finite and > 0 (float32, a float64 value beyond
     float32's range becoming inf as numpy's cast makes it), then each pixel's minimum over the
     carving window (numpy's sliding windows, not cv2's erode); the camera rows are T_cam_from_world's."""
-    from rgbd_envmap.envmap import _seen_arrays
+    from rgbd_envmap.envmap.map_update import _seen_arrays
 
     rng = np.random.default_rng(5)
     depth = rng.uniform(0.3, 5.0, (48, 64))

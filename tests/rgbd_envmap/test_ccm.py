@@ -3,8 +3,8 @@ invert_ccm.
 
 References, each computed here independently of the code under test: colour-science's
 ``matrix_colour_correction`` ('Cheung 2004', 3 terms, a Moore–Penrose pseudo-inverse fit), the closed
-form of the normal equations written out below, and colour-science's ColorChecker data, colour-space
-conversions and CIEDE2000 for the colour-error figure.
+form of the normal equations (:func:`rgbd_envmap.reference.colour.ccm_least_squares_reference`), and
+colour-science's ColorChecker data, colour-space conversions and CIEDE2000 for the colour-error figure.
 
 Camera model used by the ColorChecker tests (one "frame" per trial): reference linear sRGB of the 24
 patches of 'ColorChecker24 - After November 2014' (clipped at 0: the cyan patch's R is −0.043, outside
@@ -34,6 +34,7 @@ from rgbd_envmap.errors import (
     ShapeError,
     UnknownMethodError,
 )
+from rgbd_envmap.reference.colour import ccm_least_squares_reference
 
 
 @dataclass(frozen=True)
@@ -60,12 +61,6 @@ def _random_pairs(n: int, seed: int, noise: float = 0.002, matrix: np.ndarray = 
     rng = np.random.default_rng(seed)
     src = rng.uniform(0.05, 0.95, (n, 3))
     return src, src @ matrix.T + noise * rng.standard_normal((n, 3))
-
-
-def _closed_form(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """M = ((AᵀA)⁻¹ AᵀB)ᵀ, the normal-equation solution of min ‖A Mᵀ − B‖²."""
-    a, b = np.asarray(src, np.float64), np.asarray(dst, np.float64)
-    return (np.linalg.inv(a.T @ a) @ (a.T @ b)).T
 
 
 # ------------------------------------------------------------------------------------------------
@@ -125,7 +120,7 @@ def test_matches_colour_science_cheung2004(seed: int) -> None:
     r = estimate_ccm(src, dst)
     assert r.accepted and r.method == "least_squares"
     np.testing.assert_allclose(r.matrix, expected, rtol=0, atol=TOL.vs_colour_science)
-    np.testing.assert_allclose(r.matrix, _closed_form(src, dst), rtol=0, atol=TOL.vs_closed_form)
+    np.testing.assert_allclose(r.matrix, ccm_least_squares_reference(src, dst), rtol=0, atol=TOL.vs_closed_form)
 
 
 LEAST_SQUARES_METHODS = tuple(m for m in CCM_METHODS if m != "ridge")
@@ -137,7 +132,7 @@ def test_every_method_gives_the_least_squares_matrix(method: str) -> None:
     r = estimate_ccm(src.astype(np.float32), dst.astype(np.float32), method)
     a, b = src.astype(np.float32).astype(np.float64), dst.astype(np.float32).astype(np.float64)
     assert r.accepted and r.method == method and r.n_pairs == 3000
-    np.testing.assert_allclose(r.matrix, _closed_form(a, b), rtol=0, atol=TOL.vs_closed_form)
+    np.testing.assert_allclose(r.matrix, ccm_least_squares_reference(a, b), rtol=0, atol=TOL.vs_closed_form)
 
 
 @pytest.mark.parametrize("method", CCM_METHODS)
@@ -298,7 +293,7 @@ def test_too_few_pairs_comes_first_and_still_fits() -> None:
     src, dst = _random_pairs(120, 4)
     r = estimate_ccm(src, dst)  # min_pairs 500
     assert not r.accepted and r.reason == "too few pairs (120 < 500)"
-    np.testing.assert_allclose(r.matrix, _closed_form(src, dst), atol=TOL.vs_closed_form)
+    np.testing.assert_allclose(r.matrix, ccm_least_squares_reference(src, dst), atol=TOL.vs_closed_form)
     assert estimate_ccm(src, dst, min_pairs=100).accepted
 
 
@@ -535,7 +530,7 @@ def test_invert_ccm_errors() -> None:
 def test_ridge_zero_is_least_squares() -> None:
     src, dst = _random_pairs(3000, 21, noise=0.01)
     r = estimate_ccm(src, dst, "ridge", ridge=0.0)
-    np.testing.assert_allclose(r.matrix, _closed_form(src, dst), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(r.matrix, ccm_least_squares_reference(src, dst), rtol=0, atol=1e-9)
 
 
 def test_ridge_recovers_white_balance_from_grey_patches() -> None:
@@ -574,7 +569,7 @@ def test_ridge_rejects_a_negative_strength() -> None:
 def test_jacobi_eigh_and_the_compiled_fit_match_lapack():
     """The 3×3 Jacobi eigensolver against numpy's eigh (diagonal, rank 1 and 2, condition up to
     1e10, negative entries), and the compiled fit against numpy's solve / pinv on the same sums."""
-    from rgbd_envmap.colour import _fit_sums, _sym3_eigh
+    from rgbd_envmap._kernels.ccm import fit_sums, sym3_eigh
 
     rng = np.random.default_rng(3)
     cases = [np.diag([3.0, 1.0, 2.0]), np.zeros((3, 3)), np.outer([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])]
@@ -584,7 +579,7 @@ def test_jacobi_eigh_and_the_compiled_fit_match_lapack():
     a = rng.standard_normal((3, 2))
     cases.append(a @ a.T)  # rank 2
     for m in cases:
-        w, v = _sym3_eigh(m)
+        w, v = sym3_eigh(m)
         ref = np.linalg.eigvalsh(m)
         scale = max(abs(ref).max(), 1e-300)
         np.testing.assert_allclose(w, ref, rtol=1e-12, atol=1e-14 * scale)
@@ -593,14 +588,14 @@ def test_jacobi_eigh_and_the_compiled_fit_match_lapack():
     src = rng.random((2000, 3))
     dst = src @ np.array([[1.2, 0.1, 0.0], [0.05, 0.9, 0.1], [0.0, -0.1, 1.4]]).T + 0.01 * rng.standard_normal((2000, 3))
     ata, atb, bb = src.T @ src, src.T @ dst, float((dst * dst).sum())
-    matrix, mse, cond, well_posed = _fit_sums(ata, atb, bb, 2000, -1.0)
+    matrix, mse, cond, well_posed = fit_sums(ata, atb, bb, 2000, -1.0)
     np.testing.assert_allclose(matrix, np.linalg.solve(ata, atb).T, rtol=1e-10, atol=1e-12)
     assert well_posed and np.isfinite(cond) and mse == pytest.approx(np.mean((src @ matrix.T - dst) ** 2), rel=1e-8)
     lam = 0.01 * np.trace(ata) / 3.0
     ridge_ref = np.linalg.solve(ata + lam * np.eye(3), atb + lam * np.diag(np.diag(atb) / np.diag(ata))).T
-    np.testing.assert_allclose(_fit_sums(ata, atb, bb, 2000, 0.01)[0], ridge_ref, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(fit_sums(ata, atb, bb, 2000, 0.01)[0], ridge_ref, rtol=1e-10, atol=1e-12)
     grey = np.repeat(rng.random((500, 1)), 3, axis=1)  # rank 1: minimum-norm solution, not well posed
     g_ata, g_atb = grey.T @ grey, grey.T @ grey
-    g_matrix, _, g_cond, g_ok = _fit_sums(g_ata, g_atb, float((grey * grey).sum()), 500, -1.0)
+    g_matrix, _, g_cond, g_ok = fit_sums(g_ata, g_atb, float((grey * grey).sum()), 500, -1.0)
     assert not g_ok and g_cond == np.inf
     np.testing.assert_allclose(g_matrix, (np.linalg.pinv(g_ata) @ g_atb).T, atol=1e-9)

@@ -1,7 +1,8 @@
 """Tests for rgbd_envmap.colour: the sRGB transfer functions and NV21 decode / encode.
 
 References: colour-science's IEC 61966-2-1 implementation for the transfer functions, and an ITU-R
-BT.601 limited-range YCbCr formula written out here (from Kr = 0.299, Kb = 0.114) for NV21.
+BT.601 limited-range YCbCr formula written out (from Kr = 0.299, Kb = 0.114) for NV21
+(:mod:`rgbd_envmap.reference.colour`).
 
 How close OpenCV's ``COLOR_YUV2RGB_NV21`` gets to the exact formula was measured exhaustively over all
 2^24 (Y, U, V) triples: its 20-bit fixed-point coefficients stay within 0.69 of a level of the
@@ -20,6 +21,7 @@ import pytest
 
 from rgbd_envmap import colour
 from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError, RgbdEnvmapError, ShapeError
+from rgbd_envmap.reference.colour import bt601_decode, bt601_encode, nv21_planes
 
 
 @dataclass(frozen=True)
@@ -35,40 +37,6 @@ class _Tolerances:
 
 
 TOL = _Tolerances()
-
-# ITU-R BT.601 luma weights; limited range: Y' in [16, 235], Cb/Cr in [16, 240] around 128.
-KR, KB = 0.299, 0.114
-KG = 1.0 - KR - KB
-
-
-def _bt601_decode(y: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Limited-range Y'CbCr → R'G'B' in 0..255, real-valued and clipped. Footroom luma is clamped to
-    16 as OpenCV does (see the module docstring)."""
-    yy = (np.maximum(y, 16.0) - 16.0) * 255.0 / 219.0
-    cb = (u - 128.0) * 255.0 / 224.0
-    cr = (v - 128.0) * 255.0 / 224.0
-    r = yy + 2.0 * (1.0 - KR) * cr
-    b = yy + 2.0 * (1.0 - KB) * cb
-    g = (yy - KR * r - KB * b) / KG
-    return np.clip(np.stack([r, g, b], axis=-1), 0.0, 255.0)
-
-
-def _bt601_encode(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """R'G'B' in 0..255 → limited-range (Y', Cb, Cr), real-valued."""
-    r, g, b = (rgb[..., i].astype(np.float64) / 255.0 for i in range(3))
-    ey = KR * r + KG * g + KB * b
-    return 16.0 + 219.0 * ey, 128.0 + 224.0 * (b - ey) / (2 * (1 - KB)), 128.0 + 224.0 * (r - ey) / (2 * (1 - KR))
-
-
-def _nv21_planes(buf: np.ndarray, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Full-resolution Y, U, V from an NV21 buffer: Y plane, then V, U interleaved at half resolution
-    (each chroma sample covers a 2×2 block)."""
-    flat = buf.reshape(-1)
-    y = flat[: h * w].reshape(h, w).astype(np.float64)
-    vu = flat[h * w:].reshape(h // 2, w // 2, 2).astype(np.float64)
-    up = lambda c: np.repeat(np.repeat(c, 2, axis=0), 2, axis=1)  # noqa: E731
-    return y, up(vu[..., 1]), up(vu[..., 0])
-
 
 # --------------------------------------------------------------------------------------------------
 # sRGB transfer functions
@@ -163,7 +131,7 @@ def test_decode_nv21_matches_bt601_limited_range(size):
     buf = np.random.default_rng(h).integers(0, 256, size=(h * 3 // 2, w), dtype=np.uint8)
     got = colour.decode_nv21(buf, h, w)
     assert got.shape == (h, w, 3) and got.dtype == np.uint8
-    expected = np.round(_bt601_decode(*_nv21_planes(buf, h, w)))
+    expected = np.round(bt601_decode(*nv21_planes(buf, h, w)))
     assert np.abs(got.astype(np.int64) - expected).max() <= TOL.nv21_decode_levels
 
 
@@ -207,7 +175,7 @@ def test_encode_nv21_matches_bt601_and_puts_v_first():
     for rgb in np.random.default_rng(12).integers(0, 256, size=(50, 3)):
         img = np.broadcast_to(rgb.astype(np.uint8), (2, 4, 3))
         buf = colour.encode_nv21(img).reshape(-1).astype(np.int64)
-        y, cb, cr = _bt601_encode(rgb)
+        y, cb, cr = bt601_encode(rgb)
         assert np.abs(buf[:8] - np.round(y)).max() <= TOL.nv21_encode_levels
         assert np.abs(buf[8::2] - np.round(cr)).max() <= TOL.nv21_encode_levels  # V (Cr) first
         assert np.abs(buf[9::2] - np.round(cb)).max() <= TOL.nv21_encode_levels

@@ -1,6 +1,7 @@
 """Edge-aware plane-fit depth denoising, against closed forms (a plane's inverse depth is affine in
 the normalised rays, so planes come back exactly) and an independent per-pixel least-squares
-reference (numpy lstsq over the same inlier set)."""
+reference (numpy lstsq over the same inlier set,
+:func:`rgbd_envmap.reference.denoise.plane_fit_reference`)."""
 
 from types import SimpleNamespace
 
@@ -10,6 +11,7 @@ import pytest
 from rgbd_envmap.depth.denoise import _denoise, denoise_depth, denoise_frame
 from rgbd_envmap.errors import InvalidInputError, RangeError, ShapeError
 from rgbd_envmap.geometry import pixel_rays
+from rgbd_envmap.reference.denoise import plane_fit_reference
 from rgbd_envmap.types import Distortion, Intrinsics, RGBDFrame, RigidTransform
 
 INTR = Intrinsics(48, 36, 40.0, 41.0, 23.5, 17.5, Distortion.radial(-0.08, 0.02, 0.0))
@@ -19,29 +21,6 @@ def _plane_depth(intr, normal, d):
     """z-depth of the plane n·X = d along each pixel's ray (x, y, 1)."""
     rays = pixel_rays(intr)
     return d / (rays @ np.asarray(normal, float))
-
-
-def _reference(z, known, intr, half=2, tol=0.04, min_in=6):
-    rays = pixel_rays(intr)
-    out = z.astype(np.float32).copy()
-    h, w = z.shape
-    for r in range(h):
-        for c in range(w):
-            if not known[r, c]:
-                continue
-            rows, cols = np.mgrid[max(r - half, 0):min(r + half, h - 1) + 1, max(c - half, 0):min(c + half, w - 1) + 1]
-            sel = known[rows, cols] & (np.abs(z[rows, cols] - z[r, c]) <= tol * z[r, c])
-            if sel.sum() < min_in:
-                continue
-            x = rays[rows, cols, 0][sel] - rays[r, c, 0]
-            y = rays[rows, cols, 1][sel] - rays[r, c, 1]
-            A = np.stack([x, y, np.ones_like(x)], 1)
-            if np.linalg.matrix_rank(A) < 3:
-                continue
-            sol = np.linalg.lstsq(A, 1.0 / z[rows, cols][sel], rcond=None)[0]
-            if sol[2] > 0:
-                out[r, c] = 1.0 / sol[2]
-    return out
 
 
 def test_a_plane_comes_back_exactly_and_noise_shrinks():
@@ -64,7 +43,7 @@ def test_matches_an_independent_least_squares_reference_with_holes_and_edges():
     z *= 1.0 + 0.01 * rng.standard_normal(z.shape)
     known = rng.random(z.shape) > 0.2
     got = denoise_depth(z, known, INTR)
-    want = _reference(z, known, INTR)
+    want = plane_fit_reference(z, known, INTR)
     np.testing.assert_allclose(got, want, rtol=1e-5)
     assert np.array_equal(got[~known], z[~known].astype(np.float32))  # unknown pixels untouched
 

@@ -4,7 +4,10 @@ pixel mapping (geometry.equirect_pixel_index) and ray-cast ground truth at displ
 import numpy as np
 import pytest
 
+from rgbd_envmap._kernels.envmap_update import EMPTY_Z
+from rgbd_envmap.envmap import map_update as update_module
 from rgbd_envmap.envmap import (
+    ChangeLog,
     EnvironmentMap,
     SeenDepth,
     UpdateConfig,
@@ -17,6 +20,7 @@ from rgbd_envmap.envmap import (
     translate,
     update,
 )
+from rgbd_envmap.reference.envmap import gardner_reference, pairs_reference, translate_reference, update_reference
 from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError, ShapeError, UnknownMethodError
 from rgbd_envmap.geometry import equirect_directions, equirect_pixel_index, look_at
 from rgbd_envmap.types import Intrinsics
@@ -321,22 +325,18 @@ def test_gardner_is_exact_for_a_spherical_world():
 
 @pytest.mark.parametrize("offset", [(0.3, -0.2, 0.1), (0.0, 0.0, -1.2), (1e-9, 0.0, 0.0)])
 def test_gardner_kernel_equals_the_numpy_warp(offset):
-    # The warp written with numpy (whole-map arrays, libm's atan2): the kernel's polynomial atan2
-    # (error 1.2e-8 rad) may move a ray that lands within that of a pixel edge to the next pixel.
+    # The kernel's polynomial atan2 (error 1.2e-8 rad) may move a ray that lands within that of a
+    # pixel edge to the next pixel; elsewhere it equals the reference's whole-map numpy warp.
     rng = np.random.default_rng(10)
     h, w = 90, 180
     em = _random_map(rng, h, w, 0.8)
     off, radius = np.array(offset), 1.5
-    dirs = equirect_directions(h, w).astype(np.float64)
-    b = dirs @ off
-    t = -b + np.sqrt(b * b - off @ off + radius**2)
-    rows, cols, _ = equirect_pixel_index(off + t[..., None] * dirs, h, w)
     got = translate(em, off, "gardner", radius_m=radius)
-    src_valid = em.valid[rows, cols]
-    same = (got.valid == src_valid) & (~src_valid | (got.radiance == em.radiance[rows, cols]).all(-1))
+    ref = gardner_reference(em, off, radius)
+    same = (got.valid == ref.valid) & (~ref.valid | (got.radiance == ref.radiance).all(-1))
     assert same.mean() > 0.999, same.mean()
     ok = same & got.valid
-    np.testing.assert_allclose(got.depth_m[ok], t[ok], rtol=1e-6)
+    np.testing.assert_allclose(got.depth_m[ok], ref.depth_m[ok], rtol=1e-6)
     assert not got.depth_m[~got.valid].any() and not got.radiance[~got.valid].any()
 
 
@@ -353,14 +353,14 @@ def test_translate_errors():
 def test_branchless_atan2_matches_libm_in_every_quadrant():
     import math
 
-    from rgbd_envmap.envmap import _ATAN_POLY, _atan2_branchless
+    from rgbd_envmap._kernels.envmap_common import ATAN_POLY, atan2_branchless
 
     rng = np.random.default_rng(3)
     pts = np.concatenate([rng.normal(size=(20000, 2)), [[0, 1], [0, -1], [1, 0], [-1, 0], [-1, 1e-300], [1e-300, 1e-300]]])
-    err = max(abs(_atan2_branchless(y, x) - math.atan2(y, x)) for y, x in pts if not (x < 0 and y == 0))
+    err = max(abs(atan2_branchless(y, x) - math.atan2(y, x)) for y, x in pts if not (x < 0 and y == 0))
     assert err < 2e-8
     # The written-out polynomial is the tuple's: atan(1) from the tuple equals the function's.
-    assert abs(sum(_ATAN_POLY) - _atan2_branchless(1.0, 1.0)) < 1e-15
+    assert abs(sum(ATAN_POLY) - atan2_branchless(1.0, 1.0)) < 1e-15
 
 
 def test_frame_points_match_unprojection_and_the_pose():
@@ -406,95 +406,6 @@ def test_fill_only_samples_still_obey_the_trusted_sphere():
 # comparisons are exact.
 
 
-def _ref_span(x, half, limit):
-    h = min(max(half, 0.5), limit)
-    return int(np.ceil(x - h - 0.5)), int(np.floor(x + h - 0.5))
-
-
-def _ref_span32(x, half, limit):
-    """:func:`_ref_span` in float32, as the translation computes its footprints."""
-    h = np.float32(min(max(half, 0.5), limit))
-    x = np.float32(x)
-    return int(np.ceil(x - h - np.float32(0.5))), int(np.floor(x + h - np.float32(0.5)))
-
-
-def _reference_update(em, pts, cols, device, focal, config, fill_only=None, averaged=None):
-    """The update one sample and one pixel at a time. ``averaged``: (H, W) int array of each
-    pixel's colour-average count (``UpdateConfig.colour_average``), kept by the caller across calls."""
-    import math
-
-    if averaged is None:
-        averaged = np.zeros((em.height, em.width), int)
-
-    from rgbd_envmap.envmap import _block_coords, _trig_tables
-
-    h, w = em.height, em.width
-    row_px, col_px = h / math.pi, w / (2 * math.pi)
-    # Each point's (v, u) and distance as the kernel computes them (the same compiled function, so
-    # the same bits: the tests below on equal float32 distances depend on the last bit of r).
-    n = len(pts)
-    bx, by, bz, bv, bu, br = (np.empty(max(n, 1)) for _ in range(6))
-    _block_coords(np.ascontiguousarray(pts, np.float64), 0, n, *em.origin, row_px, col_px, bx, by, bz, bv, bu, br)
-    zbuf = {}
-    for i, (p, c) in enumerate(zip(pts, cols)):
-        if not (np.isfinite(p).all() and np.isfinite(c).all()):
-            continue
-        dx, dy, r, v, u = bx[i], by[i], br[i], bv[i], bu[i]
-        hh = math.sqrt(dx * dx + dy * dy)
-        if not (r > 0 and np.float32(r) < np.inf):
-            continue
-        row, col = min(int(v), h - 1), int(u) % w
-        r0, r1, c0, c1 = row, row, col, col
-        if config.splat:
-            e = p - device
-            angle = config.splat_scale * math.sqrt(e @ e) / (focal * r)
-            s = max(hh / r, 1e-6)
-            r0, r1 = _ref_span(v, 0.5 * angle * row_px, config.max_splat_px)
-            c0, c1 = _ref_span(u, 0.5 * angle * col_px / s, min(config.max_splat_px / s, w // 2))
-        for rr in range(max(r0, 0), min(r1, h - 1) + 1):
-            for cc in range(c0, c1 + 1):
-                key = (rr, cc % w)
-                if key not in zbuf or r < zbuf[key][0]:
-                    zbuf[key] = (np.float32(r), i)
-    rows, cols_t = _trig_tables(h, w)
-    o = np.asarray(device, float) - em.origin
-    dev_r = math.sqrt(o @ o)
-    counts = {"empty": 0, "closer": 0, "trusted": 0, "removal": 0, "averaged": 0}
-    for (rr, cc), (r, i) in zbuf.items():
-        rule = None
-        if not em.valid[rr, cc]:
-            rule = "empty"
-        elif r < em.depth_m[rr, cc] and not (fill_only is not None and fill_only[i]):
-            rule = "closer"
-        elif dev_r < config.trusted_radius_m:
-            rule = "trusted"
-        else:
-            st = rows[rr, 0]
-            d = np.array([st * cols_t[cc, 1], st * cols_t[cc, 0], rows[rr, 1]], float)
-            along = o @ d
-            to_ray = math.sqrt((o - along * d) @ (o - along * d)) if along > 0 else dev_r
-            if rule_removal(along, to_ray, r, em.depth_m[rr, cc], config.removal_radius_m):
-                rule = "removal"
-        if rule:
-            counts[rule] += 1
-            d = float(em.depth_m[rr, cc])
-            n_avg = config.colour_average
-            same = em.valid[rr, cc] and abs(float(r) - d) <= d * config.carve_tol_rel + config.carve_tol_abs_m and n_avg > 1
-            k = averaged[rr, cc]
-            if same:  # a running mean over at most n_avg samples, in float32 as the kernel
-                wgt = np.float32(1.0) / (np.float32(k) + np.float32(2.0))
-                old = em.radiance_planes[:, rr, cc].copy()
-                em.radiance_planes[:, rr, cc] = old + (np.asarray(cols[i], np.float32) - old) * wgt
-                averaged[rr, cc] = min(k + 1, n_avg - 2)
-                counts["averaged"] += 1
-            else:
-                em.radiance_planes[:, rr, cc] = cols[i]
-                averaged[rr, cc] = 0
-            em.depth_m[rr, cc] = r if not em.valid[rr, cc] else 0.5 * (em.depth_m[rr, cc] + r)
-            em.valid[rr, cc] = True
-    return len(zbuf), counts
-
-
 @pytest.mark.parametrize("splat", [True, False])
 def test_update_kernel_equals_the_per_sample_reference(splat):
     # Samples near the origin (large footprints, some across the seam and near the poles), far
@@ -516,7 +427,7 @@ def test_update_kernel_equals_the_per_sample_reference(splat):
         cols[rng.random(n) < 0.02, 1] = np.inf
         fill_only = rng.random(n) < 0.3
         stats = update(em_k, pts, cols, np.array(device), FOCAL, cfg, fill_only=fill_only)
-        touched, counts = _reference_update(em_r, pts, cols, np.array(device), FOCAL, cfg, fill_only, averaged)
+        touched, counts = update_reference(em_r, pts, cols, np.array(device), FOCAL, cfg, fill_only, averaged)
         assert stats.touched == touched
         assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal,
                 stats.averaged) == tuple(counts.values())
@@ -528,10 +439,8 @@ def test_update_kernel_equals_the_per_sample_reference(splat):
     # Every rule fired, and some pixels were refused (the last device is inside the trusted sphere).
     assert (fired > 0).all()
     # The scratch is clean again: the band z-buffer was cleared where touched, the tile flags reset.
-    from rgbd_envmap.envmap import _EMPTY_Z
-
-    zband, tiles = em_k._update_scratch()[:2]
-    assert (zband == _EMPTY_Z).all() and not tiles.any()
+    zband, tiles = update_module._update_scratch(em_k)[:2]
+    assert (zband == EMPTY_Z).all() and not tiles.any()
 
 
 @pytest.mark.parametrize("splat", [True, False])
@@ -559,7 +468,7 @@ def test_update_equal_float32_distances_keep_what_a_sequential_z_test_keeps(spla
                     em.valid[:] = True
                     em.depth_m[:] = pre
             stats = update(em_k, pts, cols, np.array([0.0, 0.0, 1.0]), FOCAL, cfg, fill_only)
-            touched, counts = _reference_update(em_r, pts, cols, np.array([0.0, 0.0, 1.0]), FOCAL, cfg, fill_only)
+            touched, counts = update_reference(em_r, pts, cols, np.array([0.0, 0.0, 1.0]), FOCAL, cfg, fill_only)
             assert stats.touched == touched
             assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged) == tuple(counts.values())
             np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
@@ -592,30 +501,25 @@ def test_update_kernel_equals_the_reference_on_odd_widths_across_the_seam_and_po
         cols = rng.random((n, 3)).astype(np.float32)
         fill_only = rng.random(n) < 0.2
         stats = update(em_k, pts, cols, np.array(device), focal, cfg, fill_only=fill_only)
-        touched, counts = _reference_update(em_r, pts, cols, np.array(device), focal, cfg, fill_only, averaged)
+        touched, counts = update_reference(em_r, pts, cols, np.array(device), focal, cfg, fill_only, averaged)
         assert stats.touched == touched
         assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged) == tuple(counts.values())
         np.testing.assert_array_equal(em_k.valid, em_r.valid)
         np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
         np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
-    from rgbd_envmap.envmap import _EMPTY_Z
-
-    zband, tiles = em_k._update_scratch()[:2]
-    assert (zband == _EMPTY_Z).all() and not tiles.any()
+    zband, tiles = update_module._update_scratch(em_k)[:2]
+    assert (zband == EMPTY_Z).all() and not tiles.any()
 
 
 @pytest.mark.parametrize("capacity", [None, 300])
-def test_two_thread_update_equals_one_thread(monkeypatch, capacity):
-    # The two-thread kernel lists each half of the samples at once and splits the map's bands in
-    # two parts updated at once, each with its own z-buffer band and change log: the maps, the
-    # counts and the change log (raster order; with a log too short for the frame, the same first
-    # entries and the same overflow) must equal the one-thread kernel's after every frame, with
-    # carving on. Forced to two threads even where numba has one (then the parts run in turn).
+def test_two_thread_update_equals_one_thread(capacity):
+    # The update kernel lists each half of the samples at once and splits the map's bands in two
+    # parts updated at once, each with its own z-buffer band and change log: on two threads and on
+    # one (the parts in turn) the maps, the counts and the change log (raster order; with a log too
+    # short for the frame, the same first entries and the same overflow) must be the same after
+    # every frame, with carving on.
     import dataclasses
 
-    from rgbd_envmap import envmap as envmap_module
-
-    monkeypatch.setattr(envmap_module, "_threads", lambda requested: requested)
     rng = np.random.default_rng(5)
     h, w = 64, 128
     origin = (0.1, 0.0, -0.05)
@@ -623,7 +527,7 @@ def test_two_thread_update_equals_one_thread(monkeypatch, capacity):
     for em in maps.values():
         em.record_changes()
         if capacity is not None:
-            em._changes = envmap_module._ChangeLog(capacity)
+            em.change_log = ChangeLog(capacity)
     intr = Intrinsics(32, 24, 24.0, 24.0, 15.5, 11.5)
     overflowed = 0
     frames = [([1.0, 0.5, 0.2], 900), ([0.4, -0.1, 0.5], 900), ([0.12, -0.04, -0.03], 900), ([0.5, 0.0, 0.0], 0),
@@ -640,10 +544,10 @@ def test_two_thread_update_equals_one_thread(monkeypatch, capacity):
         T = look_at(device, [0.0, 0.0, 0.0])
         seen = SeenDepth(rng.uniform(0.5, 5.0, (24, 32)).astype(np.float32), rng.random((24, 32)) < 0.9, intr, T)
         stats, changes = {}, {}
-        cap = maps[2]._changes.capacity  # grown by take_changes after an overflow
+        cap = maps[2].change_log.capacity  # grown by take_changes after an overflow
         for t, em in maps.items():
-            cfg = UpdateConfig(max_splat_px=8, threads=t)
-            stats[t] = update(em, pts, cols, np.array(device), 40.0, cfg, fill_only, seen)
+            cfg = UpdateConfig(max_splat_px=8)
+            stats[t] = update(em, pts, cols, np.array(device), 40.0, cfg, fill_only, seen, threads=t)
             changes[t] = em.take_changes()
         assert dataclasses.astuple(stats[1]) == dataclasses.astuple(stats[2])
         a, b = maps[1], maps[2]
@@ -661,15 +565,13 @@ def test_two_thread_update_equals_one_thread(monkeypatch, capacity):
             assert len(cb.index) == cap
     assert overflowed == (capacity is not None)
     assert maps[2].valid.mean() > 0.3 and stats[2].samples == 1
-    from rgbd_envmap.envmap import _EMPTY_Z
-
-    for zband, tiles in (maps[2]._update_scratch()[:2], maps[2]._scratch2[:2]):
-        assert (zband == _EMPTY_Z).all() and not tiles.any()
+    for zband, tiles in (update_module._update_scratch(maps[2])[:2], maps[2].scratch["update_2t"][:2]):
+        assert (zband == EMPTY_Z).all() and not tiles.any()
 
 
 def test_update_threads_must_be_positive():
-    with pytest.raises(RangeError):
-        UpdateConfig(threads=0)
+    with pytest.raises(RangeError, match="threads"):
+        update(EnvironmentMap(H, W), np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(3), FOCAL, threads=0)
 
 
 def test_update_without_usable_samples_changes_nothing():
@@ -711,7 +613,7 @@ def test_removal_rule_near_the_edge_of_its_cone():
             em.valid[:] = True
             em.depth_m[:] = 1.0  # every sample is farther: only the removal rule can take it
         stats = update(em_k, pts, cols, device, FOCAL, cfg)
-        touched, counts = _reference_update(em_r, pts, cols, device, FOCAL, cfg)
+        touched, counts = update_reference(em_r, pts, cols, device, FOCAL, cfg)
         assert stats.touched == touched and stats.taken_removal == counts["removal"]
         assert 0 < counts["removal"] < touched
         fired += counts["removal"]
@@ -736,30 +638,30 @@ def _random_rgbd(seed, width, height, focal):
 
 
 def test_fused_frame_samples_and_pairs_equal_the_separate_calls():
-    from rgbd_envmap.envmap import _frame_pairs, _frame_samples, frame_points
+    from rgbd_envmap.envmap import frame_pairs, frame_points, frame_samples
 
     rng, intr, T, depth, mask, rgb = _random_rgbd(12, 40, 30, 35.0)
     flag = rng.random(intr.shape) < 0.3
-    pts, col, fo = _frame_samples(depth, mask, intr, T, rgb, flag)
+    pts, col, fo = frame_samples(depth, mask, intr, T, rgb, flag)
     np.testing.assert_array_equal(pts, frame_points(depth, mask, intr, T))
     np.testing.assert_array_equal(col, rgb[mask])
     np.testing.assert_array_equal(fo, flag[mask])
-    assert not _frame_samples(depth, mask, intr, T, rgb)[2].any()
+    assert not frame_samples(depth, mask, intr, T, rgb)[2].any()
     # Colours corrected in the same pass: apply_ccm's values up to float32 rounding; points unchanged.
     from rgbd_envmap.colour import apply_ccm
 
     m = np.array([[1.3, 0.1, -0.05], [0.02, 0.9, 0.1], [-0.1, 0.05, 1.7]])
-    pts_m, col_m, _ = _frame_samples(depth, mask, intr, T, rgb, flag, m)
+    pts_m, col_m, _ = frame_samples(depth, mask, intr, T, rgb, flag, m)
     np.testing.assert_array_equal(pts_m, pts)
     assert col_m.dtype == np.float32
     np.testing.assert_allclose(col_m, apply_ccm(rgb[mask], m), rtol=2e-6, atol=1e-7)
     from rgbd_envmap.errors import NonFiniteError
 
     with pytest.raises(NonFiniteError):
-        _frame_samples(depth, mask, intr, T, rgb, flag, np.full((3, 3), np.nan))
+        frame_samples(depth, mask, intr, T, rgb, flag, np.full((3, 3), np.nan))
     em = EnvironmentMap(H, W)
     update(em, frame_points(depth, np.ones(intr.shape, bool), intr, T), rgb.reshape(-1, 3), np.zeros(3), FOCAL)
-    src, dst = _frame_pairs(em, depth, mask, intr, T, rgb, 0.05)
+    src, dst = frame_pairs(em, depth, mask, intr, T, rgb, 0.05)
     ref_src, ref_dst = collect_pairs(em, pts, rgb[mask], 0.05)
     assert len(src) > 100
     np.testing.assert_array_equal(src, ref_src)
@@ -768,18 +670,14 @@ def test_fused_frame_samples_and_pairs_equal_the_separate_calls():
 
 
 @pytest.mark.parametrize("threads", [1, 2])
-def test_fused_pair_sums_equal_summing_the_collected_pairs_bit_for_bit(monkeypatch, threads):
-    """The pairs reduced to normal-equation sums inside the pair pass give exactly what collecting
-    them and summing gives (same values, same order), NaN and saturated colours included; on two
-    threads too (forced where numba has one: the parts then run in turn)."""
-    from rgbd_envmap import envmap as envmap_module
-    from rgbd_envmap.colour import _ccm_sums
-    from rgbd_envmap.envmap import _frame_pairs, frame_points
-
-    monkeypatch.setattr(envmap_module, "_threads", lambda requested: requested)
+def test_fused_pair_sums_equal_summing_the_collected_pairs_bit_for_bit(threads):
+    """The pairs reduced to normal-equation sums give exactly what collecting them and summing
+    gives (same values, same order), NaN and saturated colours included, on one thread and two."""
+    from rgbd_envmap.colour import ccm_sums
+    from rgbd_envmap.envmap import frame_pair_sums, frame_pairs, frame_points
 
     def _frame_pair_sums(*args, **kwargs):
-        return envmap_module._frame_pair_sums(*args, **kwargs, threads=threads)
+        return frame_pair_sums(*args, **kwargs, threads=threads)
 
     rng, intr, T, depth, mask, rgb = _random_rgbd(13, 64, 48, 50.0)
     rgb *= 1.1  # some channels ≥ 1: saturated
@@ -787,8 +685,8 @@ def test_fused_pair_sums_equal_summing_the_collected_pairs_bit_for_bit(monkeypat
     em = EnvironmentMap(H, W)
     update(em, frame_points(depth, np.ones(intr.shape, bool), intr, T), rng.random((intr.shape[0] * intr.shape[1], 3)),
            np.zeros(3), FOCAL)
-    src, dst = _frame_pairs(em, depth, mask, intr, T, rgb, 0.05)
-    ata, atb, bb, n, n_nonfinite, n_saturated = _ccm_sums(src, dst, 1.0)
+    src, dst = frame_pairs(em, depth, mask, intr, T, rgb, 0.05)
+    ata, atb, bb, n, n_nonfinite, n_saturated = ccm_sums(src, dst, 1.0)
     got = _frame_pair_sums(em, depth, mask, intr, T, rgb, 0.05, saturation=1.0)
     assert n > 100 and n_nonfinite > 0 and n_saturated > 0
     np.testing.assert_array_equal(got[0], ata)
@@ -801,60 +699,11 @@ def test_fused_pair_sums_equal_summing_the_collected_pairs_bit_for_bit(monkeypat
     one = np.zeros_like(mask)
     one[5, 5] = True
     for m in (np.zeros_like(mask), one, mask & (np.arange(mask.shape[0]) == 20)[:, None]):
-        src, dst = _frame_pairs(em, depth, m, intr, T, rgb, 0.05)
-        ata, atb, bb, n, n_nonfinite, n_saturated = _ccm_sums(src, dst, 1.0)
+        src, dst = frame_pairs(em, depth, m, intr, T, rgb, 0.05)
+        ata, atb, bb, n, n_nonfinite, n_saturated = ccm_sums(src, dst, 1.0)
         got = _frame_pair_sums(em, depth, m, intr, T, rgb, 0.05, saturation=1.0)
         np.testing.assert_array_equal(got[0], ata)
         assert got[2:] == (bb, n, n_nonfinite, n_saturated, len(src))
-
-def _reference_translate(em, offset, max_splat_px=8, max_rel_jump=0.2):
-    """The forward warp one source pixel at a time, in raster order, with a sequential z-test
-    (closer wins, the first on equal distances). Landing positions come from the library's row
-    reprojection, so the comparison is exact; the reprojection itself is checked against ray-cast
-    ground truth above."""
-    import math
-
-    from rgbd_envmap.translation import _reproject_row, _trig_columns
-
-    h, w = em.height, em.width
-    rs, rc, cs, cc = _trig_columns(h, w)
-    o = (-np.asarray(offset)).astype(np.float32)
-    pv, pu, pd = (np.zeros((h, w), np.float32) for _ in range(3))
-    for r in range(h):
-        _reproject_row(em.depth_m, r, rs[r], rc[r], cs, cc, o[0], o[1], o[2], np.float32(h / math.pi),
-                       np.float32(w / (2 * math.pi)), pv[r], pu[r], pd[r])
-    out = EnvironmentMap(h, w, em.origin + offset)
-    zbuf = np.full((h, w), np.inf, np.float32)
-    for r in range(h):
-        for c in range(w):
-            if not em.valid[r, c] or not (0 < pd[r, c] < np.inf):
-                continue
-            ext = []
-            for a, period in ((pv, 0.0), (pu, float(w))):
-                best = 0.0
-                for nr, nc in ((max(r - 1, 0), c), (min(r + 1, h - 1), c), (r, (c - 1) % w), (r, (c + 1) % w)):
-                    d, dn = em.depth_m[r, c], em.depth_m[nr, nc]
-                    if em.valid[nr, nc] and abs(dn - d) <= np.float32(max_rel_jump) * d:
-                        diff = abs(a[nr, nc] - a[r, c])
-                        best = max(best, 0.5 * (min(diff, period - diff) if period else diff))
-                ext.append(max(best, 0.5))
-            v, u, nd = pv[r, c], pu[r, c], pd[r, c]
-            row = min(int(v), h - 1)
-            if ext == [0.5, 0.5]:
-                targets = [(row, int(u) % w)]
-            else:
-                lim = min(max_splat_px / max(float(rs[row]), 1e-6), w // 2)
-                r0, r1 = _ref_span32(v, ext[0], max_splat_px)
-                c0, c1 = _ref_span32(u, ext[1], np.float32(lim))
-                targets = [(rr, cc % w) for rr in range(max(r0, 0), min(r1, h - 1) + 1) for cc in range(c0, c1 + 1)]
-            for t in targets:
-                if nd < zbuf[t]:
-                    zbuf[t] = nd
-                    out.depth_m[t] = nd
-                    out.valid[t] = True
-                    out.radiance_planes[(slice(None), *t)] = em.radiance_planes[:, r, c]
-    return out
-
 
 @pytest.mark.parametrize("threads", [1, 2])
 @pytest.mark.parametrize("offset", [(0.3, -0.2, 0.1), (-0.05, 0.0, 0.6), (0.0, 0.0, 0.0)])
@@ -871,45 +720,46 @@ def test_translate_kernel_equals_the_per_pixel_reference(offset, threads):
     rad = rng.random((h, w, 3)).astype(np.float32)
     em = EnvironmentMap.from_arrays(rad, depth, valid, np.zeros(3))
     off = np.array(offset)
-    got, ref = translate(em, off, threads=threads), _reference_translate(em, off)
+    got, ref = translate(em, off, threads=threads), translate_reference(em, off)
     np.testing.assert_array_equal(got.valid, ref.valid)
     np.testing.assert_array_equal(got.depth_m, ref.depth_m)
     np.testing.assert_array_equal(got.radiance_planes, ref.radiance_planes)
     # The source map is intact and the key buffers clean for the next call (the spare keys past
     # the map's end take the updates of pixels that are not one-pixel footprints).
-    from rgbd_envmap.translation import _NO_KEY, _translate_buffers
+    from rgbd_envmap._kernels.translate import NO_KEY
+    from rgbd_envmap.envmap.translation import _translate_buffers
 
     np.testing.assert_array_equal(em.depth_m, depth)
     for part in range(threads):
-        assert (_translate_buffers(h, w, part)[0][: h * w] == _NO_KEY).all()
+        assert (_translate_buffers(h, w, part)[0][: h * w] == NO_KEY).all()
 
 
 def test_float32_atan2_matches_libm():
     import math
 
-    from rgbd_envmap.translation import _atan2_f32
+    from rgbd_envmap._kernels.translate import atan2_f32
 
     rng = np.random.default_rng(4)
     pts = np.concatenate([rng.normal(size=(5000, 2)), [[0, 1], [0, -1], [1, 0], [-1, 1e-30], [1e-30, 1e-30]]])
     pts = pts.astype(np.float32)
-    err = max(abs(_atan2_f32(y, x) - math.atan2(y, x)) for y, x in pts)
+    err = max(abs(atan2_f32(y, x) - math.atan2(y, x)) for y, x in pts)
     assert err < 3e-7  # 1e-4 of a 2000×1000 pixel (3.1e-3 rad)
 
 
 def test_pairs_equal_a_numpy_reference():
     rng = np.random.default_rng(5)
-    em = EnvironmentMap(H, W)
-    update(em, rng.normal(size=(3000, 3)) * 2, rng.random((3000, 3)).astype(np.float32), np.zeros(3), FOCAL)
-    pts = rng.normal(size=(4000, 3)) * 2
-    pts[::97] = np.nan
-    cols = rng.random((4000, 3))  # float64 colours come back as float32
-    src, dst = collect_pairs(em, pts, cols, max_depth_diff_m=0.3)
-    rows, cc, ok = equirect_pixel_index(pts, H, W)
-    keep = ok & em.valid[rows, cc] & (np.abs(em.depth_m[rows, cc] - np.linalg.norm(pts, axis=1)) <= 0.3)
-    assert 0 < keep.sum() < len(pts)
-    assert src.dtype == dst.dtype == np.float32
-    np.testing.assert_array_equal(src, cols[keep].astype(np.float32))
-    np.testing.assert_array_equal(dst, em.radiance[rows[keep], cc[keep]])
+    for origin in (np.zeros(3), np.array([0.3, -0.2, 0.1])):
+        em = EnvironmentMap(H, W, origin)
+        update(em, origin + rng.normal(size=(3000, 3)) * 2, rng.random((3000, 3)).astype(np.float32), origin, FOCAL)
+        pts = origin + rng.normal(size=(4000, 3)) * 2
+        pts[::97] = np.nan
+        cols = rng.random((4000, 3))  # float64 colours come back as float32
+        src, dst = collect_pairs(em, pts, cols, max_depth_diff_m=0.3)
+        ref_src, ref_dst = pairs_reference(em, pts, cols, max_depth_diff_m=0.3)
+        assert 0 < len(ref_src) < len(pts)
+        assert src.dtype == dst.dtype == np.float32
+        np.testing.assert_array_equal(src, ref_src)
+        np.testing.assert_array_equal(dst, ref_dst)
 
 
 def test_translate_kernel_on_tiny_and_empty_maps():
@@ -919,7 +769,7 @@ def test_translate_kernel_on_tiny_and_empty_maps():
         em = EnvironmentMap.from_arrays(rng.random((h, w, 3)).astype(np.float32),
                                         rng.uniform(0.5, 3, (h, w)).astype(np.float32), rng.random((h, w)) < 0.8, np.zeros(3))
         for off in (np.array([0.3, -0.2, 0.1]), np.zeros(3)):
-            got, ref = translate(em, off), _reference_translate(em, off)
+            got, ref = translate(em, off), translate_reference(em, off)
             np.testing.assert_array_equal(got.valid, ref.valid)
             np.testing.assert_array_equal(got.depth_m, ref.depth_m)
             np.testing.assert_array_equal(got.radiance_planes, ref.radiance_planes)
@@ -947,7 +797,7 @@ def test_translate_keys_of_earlier_calls_never_show():
     h, w = 20, 40
     dense, sparse = _random_map(rng, h, w, 0.95), _random_map(rng, h, w, 0.3)
     off = np.array([0.2, -0.1, 0.05])
-    ref_dense, ref_sparse = _reference_translate(dense, off), _reference_translate(sparse, off)
+    ref_dense, ref_sparse = translate_reference(dense, off), translate_reference(sparse, off)
     for threads in (2, 1, 2):
         _assert_same_map(translate(dense, off, threads=threads), ref_dense)
         _assert_same_map(translate(sparse, off, threads=threads), ref_sparse)
@@ -972,7 +822,6 @@ def test_translate_threads_must_be_positive():
 
 
 def test_translate_out_gives_the_same_map_in_place():
-    from rgbd_envmap.translation import translate_map
 
     rng = np.random.default_rng(8)
     em = _random_map(rng, 24, 48, 0.8)
@@ -980,8 +829,8 @@ def test_translate_out_gives_the_same_map_in_place():
     out = EnvironmentMap(24, 48)
     out.record_changes()
     for method, off in (("depth", np.array([0.3, -0.2, 0.1])), ("depth", np.array([-0.05, 0.0, 0.4])), ("gardner", np.array([0.2, 0, 0]))):
-        ref = translate_map(em, off, method)
-        got = translate_map(em, off, method, out=out)
+        ref = translate(em, off, method)
+        got = translate(em, off, method, out=out)
         assert got is out
         _assert_same_map(got, ref)
         np.testing.assert_array_equal(got.origin, em.origin + off)
@@ -989,32 +838,31 @@ def test_translate_out_gives_the_same_map_in_place():
 
 
 def test_translate_out_errors():
-    from rgbd_envmap.translation import translate_map
 
     em = EnvironmentMap(H, W)
     off = np.array([0.1, 0.0, 0.0])
     for bad in (EnvironmentMap(H, W + 2), EnvironmentMap(H + 1, W), em, np.zeros((3, H, W), np.float32)):
         with pytest.raises(InvalidInputError, match="out"):
-            translate_map(em, off, out=bad)
+            translate(em, off, out=bad)
     shares = EnvironmentMap(H, W)
     shares.depth_m = em.depth_m  # the kernel would read what it writes
     with pytest.raises(InvalidInputError, match="out"):
-        translate_map(em, off, out=shares)
+        translate(em, off, out=shares)
     # Nothing is touched when the call is rejected.
     out = EnvironmentMap(H, W)
     with pytest.raises(InvalidInputError):
-        translate_map(em, np.array([3.0, 0, 0]), "gardner", radius_m=2.0, out=out)
+        translate(em, np.array([3.0, 0, 0]), "gardner", radius_m=2.0, out=out)
     np.testing.assert_array_equal(out.origin, np.zeros(3))
 
 
 def test_masked_run_update_touches_only_its_lanes():
     import numba
 
-    from rgbd_envmap._intrinsics import _min_run8
+    from rgbd_envmap._kernels.intrinsics import min_run8
 
     @numba.njit
     def run(a, q, m, k):
-        _min_run8(a, q, m, k)
+        min_run8(a, q, m, k)
 
     for q, m in ((0, 0), (3, 1), (2, 5), (4, 8), (1, 11), (14, 2)):  # (14, 2): lanes past the end stay off
         a = np.arange(16, dtype=np.int64) * 10
@@ -1066,7 +914,7 @@ def test_change_log_overflow_and_mark_modified_say_incomplete():
     rng = np.random.default_rng(5)
     em = EnvironmentMap(H, W)
     em.record_changes()
-    em._changes = type(em._changes)(8)  # a tiny log
+    em.change_log = ChangeLog(8)  # a tiny log
     stats = update(em, *_random_frame(rng), np.zeros(3) + 2.0, FOCAL)
     ch = em.take_changes()
     assert stats.taken > 8 and not ch.complete and len(ch.index) == 8
@@ -1084,12 +932,12 @@ def test_compress16_lists_the_flagged_columns_in_order(monkeypatch, avx512):
     # order, appended after what the list holds; 16 flags past the end read as zero padding.
     import numba
 
-    from rgbd_envmap import _intrinsics
+    from rgbd_envmap._kernels import intrinsics as _intrinsics
 
-    if avx512 and not _intrinsics._host_has_avx512():
+    if avx512 and not _intrinsics.host_has_avx512():
         pytest.skip("no AVX-512 here")
-    monkeypatch.setattr(_intrinsics, "_AVX512", avx512)
-    compress16 = _intrinsics._compress16
+    monkeypatch.setattr(_intrinsics, "AVX512", avx512)
+    compress16 = _intrinsics.compress16
 
     @numba.njit(cache=False)
     def listed(flags, width, out, n):

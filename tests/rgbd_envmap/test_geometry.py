@@ -1,7 +1,7 @@
 """Tests for rgbd_envmap.geometry: Brown projection, SE(3) helpers and the equirectangular mapping.
 
 References are independent of the code under test: OpenCV's ``projectPoints`` for the camera model,
-the DESIGN.md §3 formulas re-derived here for the equirect mapping, and numerical quadrature of
+the docs/reference/conventions.md formulas re-derived here for the equirect mapping, and numerical quadrature of
 sin θ for the pixel solid angles.
 """
 
@@ -81,7 +81,7 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _design_direction(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """DESIGN.md §3: d = (sin θ cos φ, sin θ sin φ, cos θ)."""
+    """docs/reference/conventions.md: d = (sin θ cos φ, sin θ sin φ, cos θ)."""
     return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=-1)
 
 
@@ -408,7 +408,7 @@ def test_every_pixel_centre_maps_back_to_its_own_index():
     assert valid.all()
     np.testing.assert_array_equal(rows, vv)
     np.testing.assert_array_equal(cols, uu)
-    # ... and from directions computed here from DESIGN.md's formula.
+    # ... and from directions computed here from the conventions' formula (docs/reference/conventions.md).
     d = _design_direction(np.pi * (vv + 0.5) / h, 2.0 * np.pi * (uu + 0.5) / w - np.pi)
     uv = geometry.directions_to_equirect(d, h, w)
     np.testing.assert_allclose(uv[..., 0], uu, rtol=0, atol=1e-9)

@@ -1,10 +1,11 @@
 """Tests for rgbd_envmap.depth.holes: hole filling of the depth image (paper 003 §4.2, eq. 1).
 
-The reference for "monroy2018" is :func:`_reference_eq1` below: a deliberately slow, obvious
-pure-Python transcription of eq. (1) that marches outward pixel by pixel from every unknown pixel in
-each of the 8 directions. The library's numba kernel shares no code with it (it sweeps the image
-twice, keeping the nearest source of every ray). :func:`_reference_eq1_in_kernel_order` marches the
-same way with the kernel's float64 order of operations, and pins the kernel bit for bit. Closed-form
+The reference for "monroy2018" is :func:`rgbd_envmap.reference.holes.eq1_reference`: a deliberately
+slow, obvious pure-Python transcription of eq. (1) that marches outward pixel by pixel from every
+unknown pixel in each of the 8 directions. The library's numba kernel shares no code with it (it
+sweeps the image twice, keeping the nearest source of every ray).
+:func:`~rgbd_envmap.reference.holes.eq1_kernel_order_reference` marches the same way with the
+kernel's float64 order of operations, and pins the kernel bit for bit. Closed-form
 cases check the weights against the formula by hand.
 The baselines ("telea", "ip_basic") are checked on planar ramps and for their contracts.
 """
@@ -31,6 +32,12 @@ from rgbd_envmap.errors import (
     ShapeError,
     UnknownMethodError,
 )
+from rgbd_envmap.reference.holes import (
+    DIRECTIONS,
+    eq1_kernel_order_reference,
+    eq1_reference,
+    source_range_reference,
+)
 
 fill_holes = holes.fill_holes
 FILL_METHODS = holes.FILL_METHODS
@@ -50,37 +57,6 @@ class _Tolerances:
 
 TOL = _Tolerances()
 
-_DIRECTIONS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
-
-
-def _reference_eq1(depth: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. (1) of paper 003, one pixel and one direction at a time."""
-    h, w = depth.shape
-    out = np.zeros((h, w), np.float64)
-    after = np.zeros((h, w), bool)
-    for y in range(h):
-        for x in range(w):
-            if known[y, x]:
-                out[y, x] = depth[y, x]
-                after[y, x] = True
-                continue
-            num = den = 0.0
-            for dy, dx in _DIRECTIONS:
-                k = 1
-                while 0 <= y + k * dy < h and 0 <= x + k * dx < w:
-                    if known[y + k * dy, x + k * dx]:
-                        x_r = math.hypot(k * dy, k * dx)  # Euclidean distance in pixels
-                        w_n = max(0.0, (w - x_r) / w)
-                        num += w_n * float(depth[y + k * dy, x + k * dx])
-                        den += w_n
-                        break  # only the nearest known pixel of this direction
-                    k += 1
-            if den > 0.0:
-                out[y, x] = num / den
-                after[y, x] = True
-    return out, after
-
-
 def _random_case(rng: np.random.Generator, h: int, w: int, hole_fraction: float):
     depth = rng.uniform(0.2, 4.0, (h, w)).astype(np.float32)
     known = rng.random((h, w)) >= hole_fraction
@@ -90,7 +66,7 @@ def _random_case(rng: np.random.Generator, h: int, w: int, hole_fraction: float)
 
 def _assert_matches_reference(depth: np.ndarray, known: np.ndarray) -> None:
     out, after = fill_holes(depth, known)
-    ref, ref_after = _reference_eq1(depth, known)
+    ref, ref_after = eq1_reference(depth, known)
     np.testing.assert_array_equal(after, ref_after)
     np.testing.assert_allclose(out[after], ref[after], rtol=0, atol=TOL.reference_m)
     assert np.all(out[~after] == 0.0)
@@ -155,42 +131,6 @@ def test_monroy2018_matches_reference_property(known, seed):
     _assert_matches_reference(depth, known)
 
 
-def _reference_eq1_in_kernel_order(depth: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """Eq. (1) once more, marching as :func:`_reference_eq1` does, but with the kernel's float64
-    arithmetic in the kernel's order: weights max(0, (w − k·s) · (1/w)) from the step count k (capped
-    at w) with s = 1 or √2; sums up, up-left, up-right, then down, down-left, down-right, left,
-    right. The kernel is pinned to this bit for bit (a regression in its arithmetic shows here)."""
-    h, w = depth.shape
-    wf, inv_w, s2 = float(w), 1.0 / float(w), math.sqrt(2.0)
-    out = np.zeros((h, w), np.float32)
-
-    def ray(y, x, dy, dx, scale):
-        k = 1
-        while 0 <= y + k * dy < h and 0 <= x + k * dx < w:
-            if known[y + k * dy, x + k * dx]:
-                kk = min(k, w)
-                return max(0.0, (wf - kk * scale) * inv_w), float(depth[y + k * dy, x + k * dx])
-            k += 1
-        return max(0.0, (wf - wf * scale) * inv_w), 0.0  # no source: weight 0
-
-    for y in range(h):
-        for x in range(w):
-            if known[y, x]:
-                out[y, x] = depth[y, x]
-                continue
-            (wa, da), (wb, db), (wc, dc) = ray(y, x, -1, 0, 1.0), ray(y, x, -1, -1, s2), ray(y, x, -1, 1, s2)
-            num_up, den_up = wa * da + wb * db + wc * dc, wa + wb + wc
-            (wa, da), (wb, db), (wc, dc) = ray(y, x, 1, 0, 1.0), ray(y, x, 1, -1, s2), ray(y, x, 1, 1, s2)
-            num, den = wa * da + wb * db + wc * dc, wa + wb + wc
-            for dx in (-1, 1):
-                wt, d = ray(y, x, 0, dx, 1.0)
-                num += wt * d
-                den += wt
-            if den + den_up > 0.0:
-                out[y, x] = np.float32((num + num_up) / (den + den_up))
-    return out
-
-
 @pytest.mark.parametrize("shape", [(1, 1), (1, 9), (11, 1), (17, 23), (60, 7), (7, 60), (45, 45)])
 @pytest.mark.parametrize("hole_fraction", [0.05, 0.5, 0.95])
 def test_monroy2018_is_bit_identical_to_the_kernel_order_reference(shape, hole_fraction):
@@ -201,7 +141,7 @@ def test_monroy2018_is_bit_identical_to_the_kernel_order_reference(shape, hole_f
     disc = known & ((yy - shape[0] // 3) ** 2 + (xx - shape[1] // 2) ** 2 > (min(shape) // 3) ** 2)
     for k in (known, disc):
         out, _ = fill_holes(depth, k)
-        np.testing.assert_array_equal(out.view(np.uint32), _reference_eq1_in_kernel_order(depth, k).view(np.uint32))
+        np.testing.assert_array_equal(out.view(np.uint32), eq1_kernel_order_reference(depth, k).view(np.uint32))
 
 
 def test_monroy2018_all_unknown_stays_unknown():
@@ -223,7 +163,7 @@ def test_monroy2018_single_known_pixel_fills_exactly_its_eight_rays():
     depth[y0, x0], known[y0, x0] = value, True
     out, after = fill_holes(depth, known)
     on_ray = np.zeros((h, w), bool)
-    for dy, dx in _DIRECTIONS:
+    for dy, dx in DIRECTIONS:
         y, x = y0, x0
         while 0 <= y < h and 0 <= x < w:
             on_ray[y, x] = True
@@ -368,25 +308,6 @@ def test_monroy2018_mirror_symmetry():
 # ---------------------------------------------------------------------------------------------------
 
 
-def _reference_source_range(depth: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per pixel, the smallest and largest depth among the eq. (1) sources of non-zero weight
-    (inf / 0 where there is none), marching each of the 8 rays as :func:`_reference_eq1` does."""
-    h, w = depth.shape
-    lo, hi = np.full((h, w), np.inf), np.zeros((h, w))
-    for y in range(h):
-        for x in range(w):
-            for dy, dx in _DIRECTIONS:
-                k = 1
-                while 0 <= y + k * dy < h and 0 <= x + k * dx < w:
-                    if known[y + k * dy, x + k * dx]:
-                        if math.hypot(k * dy, k * dx) < w:
-                            d = float(depth[y + k * dy, x + k * dx])
-                            lo[y, x], hi[y, x] = min(lo[y, x], d), max(hi[y, x], d)
-                        break
-                    k += 1
-    return lo, hi
-
-
 @pytest.mark.parametrize("shape", [(1, 9), (17, 23), (60, 7), (45, 45)])
 @pytest.mark.parametrize("hole_fraction", [0.05, 0.5, 0.95])
 @pytest.mark.parametrize("ratio", [1.0, 1.5, 4.0])
@@ -397,7 +318,7 @@ def test_monroy2018_max_source_ratio_matches_the_reference(shape, hole_fraction,
     depth, known = _random_case(rng, *shape, hole_fraction)
     out, after = fill_holes(depth, known, max_source_ratio=ratio)
     plain, plain_after = fill_holes(depth, known)
-    lo, hi = _reference_source_range(np.nan_to_num(depth), known)
+    lo, hi = source_range_reference(np.nan_to_num(depth), known)
     expected = plain_after & (known | (hi <= lo * ratio))
     np.testing.assert_array_equal(after, expected)
     np.testing.assert_array_equal(out[after].view(np.uint32), plain[after].view(np.uint32))

@@ -3,7 +3,8 @@
 References are independent of the library: scenes are ray-cast analytically here (planes, a box in
 front of a wall, a sphere) with known depth and normals; OpenCV's ``warpFrame`` (a point forward
 warp) and ``RgbdNormals``, and kornia's ``warp_frame_depth`` (a backward warp) and
-``depth_to_normals`` serve as second implementations.
+``depth_to_normals`` serve as second implementations. The warp is also compared with its float64
+loop transcription, :func:`rgbd_envmap.reference.kinect.warp_reference`.
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import pytest
-import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
@@ -31,6 +31,7 @@ from rgbd_envmap.ingest.kinect import (
     normals_from_depth,
     warp_depth,
 )
+from rgbd_envmap.reference.kinect import warp_reference
 from rgbd_envmap.types import Distortion, Intrinsics, RGBDFrame, RigidTransform
 
 
@@ -200,8 +201,16 @@ def test_warp_agrees_with_opencv_point_warp_on_a_plane():
     assert k.sum() > 1.05 * ((ref_mask > 0) & (ref > 0)).sum()
 
 
+def _torch_and_kornia():
+    """torch and kornia, the second implementations of some tests (the dev extra; not run-time
+    dependencies): skip the test without them."""
+    torch = pytest.importorskip("torch", reason="torch (dev extra) is only a test reference here")
+    kornia = pytest.importorskip("kornia", reason="kornia (dev extra) is only a test reference here")
+    return torch, kornia
+
+
 def test_warp_is_consistent_with_kornia_backward_warp_on_a_sphere():
-    import kornia
+    torch, kornia = _torch_and_kornia()
 
     T_w_prev, T_w_cur = RigidTransform.identity(), _pose((0.0, 3.0, 0.0), (0.04, 0.0, 0.02))
     prev, _, valid = _render(INTR, T_w_prev, **SPHERE_SCENE)
@@ -227,97 +236,6 @@ def test_warp_is_consistent_with_kornia_backward_warp_on_a_sphere():
 # ------------------------------------------------------------------- straightforward reference warp
 
 INTR_SMALL = Intrinsics(80, 60, 65.0, 66.0, 39.3, 29.6)
-# triangles of quad (v, u) as (dv, du) corners: bits 0, 1 split along 01–10, bits 2, 3 along 00–11
-_TRIS = (((0, 0), (0, 1), (1, 0)), ((0, 1), (1, 1), (1, 0)), ((0, 0), (0, 1), (1, 1)), ((0, 0), (1, 1), (1, 0)))
-
-
-def _reference_warp(depth, weight, known, intr, T, max_stretch=20.0, near=0.05):
-    """The warp as the module docstring states it, in float64 loops over quads, triangles and pixels:
-    vertices projected with OpenCV (``cv2.projectPoints``, distortion included), the stretch test on
-    3-D edges, half-open pixel-centre boxes per quad, an inclusive barycentric test (−1e-7), 1/z
-    interpolated, closest wins with the weight of the nearest vertex, then rim vertices splatted onto
-    uncovered nearest pixels with the plane depth of their first drawn triangle."""
-    h, w = intr.shape
-    d = np.where(known & np.isfinite(depth) & (depth > 0), depth, 0).astype(np.float64)
-    rays = pixel_rays(intr)[..., :2] if not intr.distortion.is_zero else _rays(intr)[..., :2]
-    P = np.dstack([rays * d[..., None], d])
-    Q = P @ T.rotation.T + T.translation
-    valid = (d > 0) & (Q[..., 2] >= near)
-    Qs = np.where(valid[..., None], Q, [0.0, 0.0, 1.0])
-    uv, _ = cv2.projectPoints(Qs.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), intr.K, intr.distortion.coefficients)
-    X, Y = uv[:, 0, 0].reshape(h, w), uv[:, 0, 1].reshape(h, w)
-    IZ = np.where(valid, 1.0 / Qs[..., 2], 0.0)
-    k2 = (max_stretch / np.sqrt(intr.fx * intr.fy)) ** 2
-
-    def ok(a, b, s2):
-        zm = min(P[a][2], P[b][2])
-        return zm > 0 and float(np.sum((P[a] - P[b]) ** 2)) <= s2 * k2 * zm * zm
-
-    zbuf = np.full((h, w), np.inf)
-    wbuf = np.zeros((h, w), np.float32)
-    codes = np.zeros((h + 1, w + 1), int)  # quad (v, u) at [v + 1, u + 1]; zero border
-    for v in range(h - 1):
-        for u in range(w - 1):
-            c00, c01, c10, c11 = (v, u), (v, u + 1), (v + 1, u), (v + 1, u + 1)
-            g = [valid[c] for c in (c00, c01, c10, c11)]
-            anti = ok(c01, c10, 2.0)
-            main = ok(c00, c11, 2.0) and not anti
-            top, bot, lef, rig = ok(c00, c01, 1.0), ok(c10, c11, 1.0), ok(c00, c10, 1.0), ok(c01, c11, 1.0)
-            bits = [anti and top and lef and g[0] and g[1] and g[2], anti and rig and bot and g[1] and g[3] and g[2],
-                    main and top and rig and g[0] and g[1] and g[3], main and bot and lef and g[0] and g[3] and g[2]]
-            codes[v + 1, u + 1] = sum(1 << i for i, b in enumerate(bits) if b)
-            tris = [[(v + dv, u + du) for dv, du in _TRIS[i]] for i, b in enumerate(bits) if b]
-            if not tris:
-                continue
-            used = {c for tri in tris for c in tri}
-            xs, ys = [X[c] for c in used], [Y[c] for c in used]
-            xlo, xhi = max(np.ceil(min(xs) - 1e-6), 0), min(np.ceil(max(xs) - 1e-6) - 1, w - 1)
-            ylo, yhi = max(np.ceil(min(ys) - 1e-6), 0), min(np.ceil(max(ys) - 1e-6) - 1, h - 1)
-            for a, b, c in tris:
-                area = (X[b] - X[a]) * (Y[c] - Y[a]) - (X[c] - X[a]) * (Y[b] - Y[a])
-                if abs(area) <= 1e-12:
-                    continue
-                for py in range(int(ylo), int(yhi) + 1):
-                    for px in range(int(xlo), int(xhi) + 1):
-                        ba = ((X[b] - px) * (Y[c] - py) - (X[c] - px) * (Y[b] - py)) / area
-                        bb = ((X[c] - px) * (Y[a] - py) - (X[a] - px) * (Y[c] - py)) / area
-                        bary = (ba, bb, 1.0 - ba - bb)
-                        if min(bary) < -1e-7:
-                            continue
-                        z = 1.0 / (bary[0] * IZ[a] + bary[1] * IZ[b] + bary[2] * IZ[c])
-                        if z < zbuf[py, px]:
-                            zbuf[py, px] = z
-                            wbuf[py, px] = weight[(a, b, c)[int(np.argmax(bary))]]
-    covered = np.isfinite(zbuf)
-    splat = np.full((h, w), np.inf)
-    for v in range(h):
-        for u in range(w):
-            quads = [(codes[v + 1, u + 1] & 13, v, u), (codes[v + 1, u] & 7, v, u - 1),
-                     (codes[v, u + 1] & 11, v - 1, u), (codes[v, u] & 14, v - 1, u - 1)]
-            full = all(codes[qv + 1, qu + 1] in (3, 12) for _, qv, qu in quads)
-            drawn = [(m, qv, qu) for m, qv, qu in quads if m]
-            if not drawn or full:
-                continue
-            px, py = int(np.floor(X[v, u] + 0.5)), int(np.floor(Y[v, u] + 0.5))
-            if not (0 <= px < w and 0 <= py < h) or covered[py, px]:
-                continue
-            m, qv, qu = drawn[0]
-            a, b, c = [(qv + dv, qu + du) for dv, du in _TRIS[(int(m) & -int(m)).bit_length() - 1]]
-            z = 1.0 / IZ[v, u]
-            area = (X[b] - X[a]) * (Y[c] - Y[a]) - (X[c] - X[a]) * (Y[b] - Y[a])
-            if abs(area) > 1e-12:
-                ba = ((X[b] - px) * (Y[c] - py) - (X[c] - px) * (Y[b] - py)) / area
-                bb = ((X[c] - px) * (Y[a] - py) - (X[a] - px) * (Y[c] - py)) / area
-                ext = ba * IZ[a] + bb * IZ[b] + (1.0 - ba - bb) * IZ[c]
-                z = 1.0 / ext if ext > 0 else z
-            if z < splat[py, px]:
-                splat[py, px] = z
-                wbuf[py, px] = weight[v, u]
-    zbuf = np.where(covered, zbuf, splat)
-    known_out = np.isfinite(zbuf)
-    return np.where(known_out, zbuf, 0.0), np.where(known_out, wbuf, 0.0), known_out
-
-
 def _noisy_scene(intr, scene, seed):
     rng = np.random.default_rng(seed)
     depth, _, valid = _render(intr, RigidTransform.identity(), **scene)
@@ -345,7 +263,7 @@ def test_warp_matches_a_straightforward_float64_reference(scene, pose, distortio
     depth, weight, known = _noisy_scene(intr, scene, seed=3)
     T = _pose(*pose)
     d, w, k = warp_depth(depth, weight, known, intr, T)
-    rd, rw, rk = _reference_warp(depth, weight, known, intr, T)
+    rd, rw, rk = warp_reference(depth, weight, known, intr, T)
     assert rk.sum() > 0.5 * k.size
     np.testing.assert_array_equal(k, rk)
     np.testing.assert_allclose(d[k], rd[k], rtol=TOL.kernel_rel)
@@ -551,9 +469,14 @@ def test_normals_of_a_sphere_match_analytic_and_reference_normals():
                                 cv2.RgbdNormals_RGBD_NORMALS_METHOD_FALS)
     ref = np.asarray(rn.apply(cv2.depthTo3d(depth, INTR.K)))[..., :3]
     assert np.median(_angle_deg(n[interior], ref[interior])) < TOL.reference_normal_deg
-    # kornia's normals point away from the camera: flip
-    import kornia
 
+
+def test_normals_of_a_sphere_match_kornia_normals():
+    torch, kornia = _torch_and_kornia()
+    depth, _, valid = _render(INTR, RigidTransform.identity(), spheres=[((0.0, 0.0, 1.5), 0.5)])
+    n, _ = normals_from_depth(depth, valid, INTR)
+    interior = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    # kornia's normals point away from the camera: flip
     kn = kornia.geometry.depth.depth_to_normals(torch.from_numpy(depth)[None, None].double(),
                                                 torch.from_numpy(INTR.K)[None])[0].permute(1, 2, 0).numpy()
     assert np.median(_angle_deg(n[interior], -kn[interior])) < TOL.reference_normal_deg

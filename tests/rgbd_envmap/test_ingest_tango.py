@@ -21,6 +21,7 @@ from rgbd_envmap.ingest.tango import (
     ingest_tango,
     rgbd_frame_from_packets,
 )
+from rgbd_envmap.reference.tango import rgbd_frame_reference
 from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, Distortion, Intrinsics, RGBDFrame, RigidTransform
 from sim.colour_camera import ColourCameraConfig
 from sim.device import TangoDeviceConfig
@@ -195,62 +196,9 @@ def test_wrong_colour_image_size_is_an_error(sim_frame):
 #
 # The kernels split the work into passes (projection of all points, z-buffer, bilinear lookups) so the
 # arithmetic compiles to SIMD code. They promise the same IEEE sequence as one plain per-point loop;
-# the loop below is that loop, written out with numpy scalars (float32 where the kernels keep float32,
-# float64 where they widen), and the results must agree bit for bit.
-
-_F64 = np.float64
-
-
-def _distort_scalar(x, y, dist):
-    """Brown distortion with the kernels' widening: x² + y² in the input's precision, the rest float64."""
-    k1, k2, p1, p2, k3 = (_F64(c) for c in dist)
-    r2 = _F64(x * x + y * y)
-    x, y = _F64(x), _F64(y)
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    return (x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
-            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y)
-
-
-def _reference_frame(points, conf, threshold, dintr, rot, trans, cintr, srgb8):
-    """Per-point loop: nearest depth pixel, closest z wins (first on a tie), bilinear linear colour."""
-    from rgbd_envmap.colour import srgb8_to_linear_lut
-
-    lut = srgb8_to_linear_lut().astype(np.float64)
-    h, w = dintr.height, dintr.width
-    depth = np.zeros((h, w), np.float32)
-    index = np.full((h, w), -1, np.int32)
-    for i, (x, y, z) in enumerate(points):
-        if not _F64(conf[i]) >= threshold or not (z > 0 and np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
-            continue
-        xd, yd = _distort_scalar(x / z, y / z, dintr.distortion.coefficients)
-        col, row = np.floor(dintr.fx * xd + dintr.cx + 0.5), np.floor(dintr.fy * yd + dintr.cy + 0.5)
-        if not (0 <= col < w and 0 <= row < h):
-            continue
-        col, row = int(col), int(row)
-        if index[row, col] < 0 or z < depth[row, col]:
-            depth[row, col], index[row, col] = z, i
-    ch, cw = cintr.height, cintr.width
-    rgb = np.zeros((h, w, 3), np.float32)
-    known = np.zeros((h, w), bool)
-    for row, col in zip(*np.nonzero(index >= 0)):
-        px, py, pz = (_F64(v) for v in points[index[row, col]])
-        x, y, z = (rot[j, 0] * px + rot[j, 1] * py + rot[j, 2] * pz + trans[j] for j in range(3))
-        if not (z > 0 and np.isfinite(x) and np.isfinite(y)):
-            continue
-        xd, yd = _distort_scalar(x / z, y / z, cintr.distortion.coefficients)
-        u, v = cintr.fx * xd + cintr.cx, cintr.fy * yd + cintr.cy
-        if not (0 <= u <= cw - 1 and 0 <= v <= ch - 1):
-            continue
-        u0, v0 = min(int(u), max(cw - 2, 0)), min(int(v), max(ch - 2, 0))
-        u1, v1 = min(u0 + 1, cw - 1), min(v0 + 1, ch - 1)
-        au, av = u - u0, v - v0
-        for c in range(3):
-            top = (1.0 - au) * lut[srgb8[v0, u0, c]] + au * lut[srgb8[v0, u1, c]]
-            bottom = (1.0 - au) * lut[srgb8[v1, u0, c]] + au * lut[srgb8[v1, u1, c]]
-            rgb[row, col, c] = np.float32((1.0 - av) * top + av * bottom)
-        known[row, col] = True
-    return depth, index, rgb, known
-
+# rgbd_envmap.reference.tango.rgbd_frame_reference is that loop, written out with numpy scalars
+# (float32 where the kernels keep float32, float64 where they widen), and the results must agree bit
+# for bit.
 
 def _packet_with_awkward_points(rng, n=3000):
     pts = _random_points(rng, n)
@@ -279,7 +227,7 @@ def test_rgbd_frame_is_bit_identical_to_the_per_point_loop():
     packet = DepthPacket(5, pts, conf, T_wd)
     frame, image = rgbd_frame_from_packets(packet, srgb8, T_wc, cal)
     m = np.linalg.inv(T_wc.matrix) @ T_wd.matrix
-    depth, index, rgb, known = _reference_frame(pts, conf, 0.7, TOF, m[:3, :3], m[:3, 3], cam, srgb8)
+    depth, index, rgb, known = rgbd_frame_reference(pts, conf, 0.7, TOF, m[:3, :3], m[:3, 3], cam, srgb8)
     assert known.sum() > 500 and (image.known & ~known).sum() > 50  # coloured, and depth-only pixels
     np.testing.assert_array_equal(image.point_index, index)
     np.testing.assert_array_equal(image.depth_m.view(np.uint32), depth.view(np.uint32))

@@ -1,7 +1,7 @@
 """Tests for rgbd_envmap.metrics: WS-PSNR, sphere-weighted correlation, coverage, data loss, depth errors.
 
 References are independent of the code under test: pixel solid angles re-derived here from the
-DESIGN.md §3 cos-difference formula with ``math.cos`` (never through ``geometry``), Sun et al.'s
+docs/reference/conventions.md cos-difference formula with ``math.cos`` (never through ``geometry``), Sun et al.'s
 cos(latitude) ERP weights, ``np.cov(..., aweights=...)`` for the weighted Pearson correlation, and
 hand-worked values for the closed forms.
 """

@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rgbd_envmap.capture import CaptureConfig
+from rgbd_envmap.pipeline.capture import CaptureConfig
 from rgbd_envmap.errors import InvalidInputError, RangeError
 from rgbd_envmap.pipeline import RENDER_STAGES, STAGES, ColourStep, DepthStep, ObjectConfig, Pipeline, PipelineConfig, RenderConfig
 from sim.colour_camera import ColourCameraConfig
@@ -103,8 +103,8 @@ def test_bad_inputs(sim):
         Pipeline(CFG, sim.calibration, np.array([0.0, np.nan, 0.0]))
     with pytest.raises(InvalidInputError, match="translation_method"):
         PipelineConfig(translation_method="nope")
-    with pytest.raises(RangeError, match="translation_threads"):
-        PipelineConfig(translation_threads=0)
+    with pytest.raises(RangeError, match="PipelineConfig.threads"):
+        PipelineConfig(threads=0)
     pipe = Pipeline(CFG, sim.calibration, ORIGIN)
     with pytest.raises(InvalidInputError, match="packet"):
         pipe.feed("not a packet")

@@ -6,8 +6,10 @@ Independent references:
     - A point at the bottom of an open tube of radius r and depth h sees a cone of half-angle
       α = atan(r / h): T_l0 = 2π √((2l+1)/4π) ∫_cos α^1 P_l(μ) μ dμ, m ≠ 0 zero by symmetry.
     - Shading against ``sh.irradiance`` (a separate implementation of E = Σ Â_l L_lm Y_lm).
+    - rgbd_envmap.reference.prt: the quadrature's rays and weights and the shading weights (exact),
+      shading and the shadow alpha in float64 (float32 rounding: 1e-5).
 
-Tolerances (measured, see docs/prt.md):
+Tolerances (measured, see docs/design/prt.md):
     - the occluded-part estimator on a convex mesh is exact up to float32: 1e-6.
     - the direct estimator with 1024 directions on a convex mesh: max |ΔT| 5.6e-4 → 2e-3.
     - the tube with 65,536 directions: max |ΔT| 8.3e-4 → 2e-3 (256-sided tube: the cap is 1.5e-4 off).
@@ -24,6 +26,7 @@ from scipy.integrate import quad
 from scipy.special import eval_legendre
 
 from rgbd_envmap import assets, prt, sh
+from rgbd_envmap._kernels import prt as prt_kernels
 from rgbd_envmap.errors import (
     DTypeError,
     InvalidInputError,
@@ -32,6 +35,7 @@ from rgbd_envmap.errors import (
     ShapeError,
     UnknownMethodError,
 )
+from rgbd_envmap.reference import prt as prt_ref
 
 EMPTY = np.zeros((0, 3), np.int32)
 UP = np.array([[0.0, 0.0, 1.0]])
@@ -270,10 +274,40 @@ def test_shade_weights_round_as_numpy_does(blob_transfer, coeff_dtype, albedo):
     # The weights L_k · albedo / π are formed inside the kernel call; they must round exactly as the
     # numpy expression does (a float32 albedo is divided by π in float32, as numpy's promotion does).
     L = np.random.default_rng(2).normal(size=(25, 3)).astype(coeff_dtype)
-    weights = (L * (np.broadcast_to(np.asarray(albedo), (3,)) / math.pi)).astype(np.float32)
+    weights = prt_ref.shade_weights(L, albedo, 25)
+    numpy_weights = (L * (np.broadcast_to(np.asarray(albedo), (3,)) / math.pi)).astype(np.float32)
+    np.testing.assert_array_equal(weights, numpy_weights)
+    a = np.asarray(albedo)
+    np.testing.assert_array_equal(prt_kernels.shade_weights(L, np.broadcast_to(a, (3,)), a.dtype.type(math.pi), 25),
+                                  weights.T)
     expected = np.empty((len(blob_transfer), 3), np.float32)
-    prt._shade_kernel(blob_transfer, np.ascontiguousarray(weights.T), 25, expected)
+    prt_kernels.shade_with_weights(blob_transfer, np.ascontiguousarray(weights.T), 25, expected)
     np.testing.assert_array_equal(prt.shade(blob_transfer, L, albedo), expected)
+
+
+def test_shade_matches_the_float64_reference(blob_transfer):
+    rng = np.random.default_rng(8)
+    for L, albedo in ((rng.normal(size=(25, 3)), np.array([0.2, 0.5, 0.9])), (rng.normal(size=(9, 3)), 0.6),
+                      (rng.normal(size=(36, 3)).astype(np.float32), np.float32(0.3))):
+        ref = prt_ref.shade(blob_transfer, L, albedo)
+        np.testing.assert_allclose(prt.shade(blob_transfer, L, albedo), ref, rtol=1e-5, atol=1e-5 * np.abs(ref).max())
+
+
+def test_quadrature_rays_and_weights_match_the_reference(blob):
+    """The rays cast per (vertex, direction) pair above the horizon and the weights taken from their
+    hits, bit for bit (integer indices and copied float32 values)."""
+    rng = np.random.default_rng(9)
+    dirs = prt.sphere_directions(64, seed=1).astype(np.float32)
+    origins = blob.vertices[:200] + np.float32(1e-5) * blob.normals[:200]
+    cos = blob.normals[:200] @ dirs.T
+    rays, flat = prt_kernels.upper_rays(origins, dirs, cos)
+    want_rays, want_flat = prt_ref.upper_rays(origins, dirs, cos)
+    np.testing.assert_array_equal(rays, want_rays)
+    np.testing.assert_array_equal(flat, want_flat)
+    hit = (rng.uniform(size=len(flat)) < 0.3).astype(np.uint8)
+    for blocked_part in (True, False):
+        np.testing.assert_array_equal(prt_kernels.blocked_weights(cos, flat, hit, blocked_part),
+                                      prt_ref.blocked_weights(cos, flat, hit, blocked_part))
 
 
 def test_shade_out_parameter_and_empty(blob_transfer):
@@ -363,15 +397,10 @@ def test_alpha_without_light_is_zero(plane):
 def test_alpha_matches_a_float64_reference(plane):
     # One float32 pass instead of two BLAS products: the same values up to float32 rounding.
     rng = np.random.default_rng(12)
-    for n in (1, 4, 9, 25):
+    for n in (1, 4, 9, 25, 36):
         L = rng.normal(size=(n, 3))
         L[0] = np.abs(L[0]) + 1.0
-        w = L @ prt.LUMINANCE_WEIGHTS
-        e_with = plane.transfer_with[:, :n].astype(np.float64) @ w
-        e_without = plane.transfer_without[:, :n].astype(np.float64) @ w
-        tiny = max(1e-6 * math.pi * abs(w[0]) / math.sqrt(4 * math.pi), 1e-12)
-        ok = e_without > tiny
-        ref = np.where(ok, np.clip(1.0 - e_with / np.where(ok, e_without, 1.0), 0.0, 1.0), 0.0)
+        ref = prt_ref.shadow_alpha(plane.transfer_with, plane.transfer_without, L)
         np.testing.assert_allclose(prt.shadow_alpha(plane, L), ref, rtol=0, atol=1e-5)
 
 

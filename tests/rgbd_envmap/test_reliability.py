@@ -1,9 +1,10 @@
 """Tests for rgbd_envmap.depth.reliability: the exposure rule and the depth-discontinuity tests of
 reliability marking (paper 003 §5.2).
 
-References used here: the authors' statistic Σ (d_i − d)² / d written out with explicit loops, and the
-noise-model χ² recomputed per pixel with ``np.linalg.lstsq`` (weighted plane fit of 1/z) and
-``scipy.stats.chi2``; both independent of the numba kernels. Noise follows the simulator's ToF model:
+References used here (:mod:`rgbd_envmap.reference.reliability`): the authors' statistic
+Σ (d_i − d)² / d written out with explicit loops, and the noise-model χ² recomputed per pixel with
+``np.linalg.lstsq`` (weighted plane fit of 1/z), with thresholds from ``scipy.stats.chi2``; both
+independent of the numba kernels. Noise follows the simulator's ToF model:
 σ_z = 1 % of depth, seeded.
 
 The module is imported directly (not through ``rgbd_envmap.depth``) so that these tests do not
@@ -32,6 +33,13 @@ from rgbd_envmap.depth.reliability import (
     mark_reliable,
 )
 from rgbd_envmap.errors import DTypeError, RangeError, ShapeError, UnknownMethodError
+from rgbd_envmap.reference.reliability import (
+    exposure_reference,
+    in_image_neighbours,
+    known_offsets,
+    monroy2018_reference,
+    noise_model_reference,
+)
 
 
 @dataclass(frozen=True)
@@ -73,57 +81,6 @@ def _slanted_wall(height: int, width: int, distance_m: float, incidence_deg: flo
     x = (np.arange(width) - (width - 1) / 2) / f_px
     z_row = distance_m * np.cos(t) / (np.cos(t) - np.sin(t) * x)
     return np.tile(z_row, (height, 1))
-
-
-# --------------------------------------------------------------------------------------------------
-# Independent references
-# --------------------------------------------------------------------------------------------------
-
-
-def _neighbours(known: np.ndarray, r: int, c: int, centre: bool):
-    h, w = known.shape
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            if (dr, dc) == (0, 0) and not centre:
-                continue
-            rr, cc = r + dr, c + dc
-            if 0 <= rr < h and 0 <= cc < w and known[rr, cc]:
-                yield dr, dc
-
-
-def _monroy_reference(depth: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """The authors' S = Σ_{known 8-neighbours} (d_i − d)² / d, term by term."""
-    s = np.zeros(depth.shape)
-    for r, c in zip(*np.nonzero(known)):
-        d = depth[r, c]
-        s[r, c] = sum((depth[r + dr, c + dc] - d) ** 2 / d for dr, dc in _neighbours(known, r, c, False))
-    return s
-
-
-def _noise_model_reference(depth: np.ndarray, known: np.ndarray, noise_rel=NOISE_REL, noise_abs=0.0):
-    """Per pixel: weighted lstsq plane fit of 1/z over the known 3×3 window, T = Σ (r_i / σ_i)²,
-    σ_i = (noise_abs + noise_rel z_i) / z_i². Returns (T, n_neighbours); T = NaN where < 3 neighbours."""
-    t = np.full(depth.shape, np.nan)
-    n_nb = np.zeros(depth.shape, int)
-    for r, c in zip(*np.nonzero(known)):
-        win = list(_neighbours(known, r, c, True))
-        n_nb[r, c] = len(win) - 1
-        if len(win) < 4:
-            continue
-        z = np.array([depth[r + dr, c + dc] for dr, dc in win])
-        a = np.array([[1.0, dc, dr] for dr, dc in win])
-        y = 1.0 / z
-        sig = (noise_abs + noise_rel * z) / z**2
-        beta, *_ = np.linalg.lstsq(a / sig[:, None], y / sig, rcond=None)
-        t[r, c] = np.sum(((y - a @ beta) / sig) ** 2)
-    return t, n_nb
-
-
-def _in_image_neighbours(shape: tuple[int, int]) -> np.ndarray:
-    h, w = shape
-    rows = np.array([min(r + 1, h - 1) - max(r - 1, 0) + 1 for r in range(h)])
-    cols = np.array([min(c + 1, w - 1) - max(c - 1, 0) + 1 for c in range(w)])
-    return rows[:, None] * cols[None, :] - 1
 
 
 # --------------------------------------------------------------------------------------------------
@@ -346,7 +303,7 @@ def test_monroy2018_matches_the_loop_reference_exactly():
     z = rng.uniform(20.0, 60.0, (9, 12))
     z[:, 6:] += 40.0
     known = rng.uniform(size=z.shape) > 0.2
-    ref = _monroy_reference(z, known)
+    ref = monroy2018_reference(z, known)
     t = discontinuity_test(z, known, "monroy2018")
     np.testing.assert_allclose(t.statistic[known], ref[known], rtol=TOL.monroy_rel)
     assert np.all(np.abs(ref[known] - MONROY2018_THRESHOLD) > 1e-6)  # nothing ties the threshold
@@ -383,7 +340,7 @@ def test_noise_model_matches_the_lstsq_reference(noise_abs):
     z = _noisy(_slanted_wall(12, 15, 1.5, 45.0), 8)
     z[3:8, 5:11] -= 0.3  # a box in front
     known = rng.uniform(size=z.shape) > 0.25
-    ref, n_ref = _noise_model_reference(z, known, noise_abs=noise_abs)
+    ref, n_ref = noise_model_reference(z, known, noise_abs=noise_abs)
     t = discontinuity_test(z, known, noise_abs_m=noise_abs, min_neighbours=3)
     np.testing.assert_array_equal(t.n_neighbours, n_ref)
     ok = ~np.isnan(ref)
@@ -468,7 +425,7 @@ def test_10cm_step_at_3m_is_at_the_limit_of_any_3x3_test():
     # wall (12.59 at 6 dof). With noise the step is rejected on each side about a third of the time
     # (the Monte Carlo power of this test is 37 %; the Neyman–Pearson bound of any 3×3 test, 76 %).
     z_clean = _step(60, 40, 3.0, 0.10)
-    ref, _ = _noise_model_reference(z_clean[:5, 17:23], np.ones((5, 6), bool))
+    ref, _ = noise_model_reference(z_clean[:5, 17:23], np.ones((5, 6), bool))
     t = discontinuity_test(z_clean, np.ones(z_clean.shape, bool))
     np.testing.assert_allclose(t.statistic[2, 19:21], ref[2, 2:4], rtol=1e-8)
     assert 4.5 < ref[2, 2] < 6.5 and not (~t.passed[1:-1, 19:21]).any()
@@ -501,7 +458,7 @@ def test_flat_plane_is_reliable_up_to_the_borders_and_corners(method):
     z = np.full((7, 9), 1.7)
     t = discontinuity_test(z, np.ones(z.shape, bool), method)
     assert t.passed.all() and t.testable.all()
-    np.testing.assert_array_equal(t.n_neighbours, _in_image_neighbours(z.shape))
+    np.testing.assert_array_equal(t.n_neighbours, in_image_neighbours(z.shape))
 
 
 def test_border_rule_requires_only_in_image_neighbours():
@@ -602,8 +559,8 @@ def test_noise_model_verdict_for_every_neighbour_requirement(min_nb):
     z = _noisy(_slanted_wall(9, 11, 2.0, 30.0), 12)
     z[2:6, 3:7] -= 0.2
     known = rng.uniform(size=z.shape) > 0.15
-    ref, n_ref = _noise_model_reference(z, known)
-    need = np.minimum(min_nb, _in_image_neighbours(z.shape))
+    ref, n_ref = noise_model_reference(z, known)
+    need = np.minimum(min_nb, in_image_neighbours(z.shape))
     testable = known & (n_ref >= np.maximum(need, 3))
     thr = chi2.isf(0.05, np.maximum(n_ref - 2, 1))
     expected = testable & (np.nan_to_num(ref, nan=np.inf) <= thr)
@@ -620,19 +577,10 @@ def test_monroy2018_verdict_for_every_neighbour_requirement(min_nb):
     z = rng.uniform(20.0, 60.0, (8, 10))
     z[:, 5:] += 40.0
     known = rng.uniform(size=z.shape) > 0.2
-    ref = _monroy_reference(z, known)
-    n_nb = np.array([[sum(1 for _ in _neighbours(known, r, c, False)) for c in range(10)] for r in range(8)])
-    expected = known & (n_nb >= np.minimum(min_nb, _in_image_neighbours(z.shape))) & (ref <= MONROY2018_THRESHOLD)
+    ref = monroy2018_reference(z, known)
+    n_nb = np.array([[sum(1 for _ in known_offsets(known, r, c, False)) for c in range(10)] for r in range(8)])
+    expected = known & (n_nb >= np.minimum(min_nb, in_image_neighbours(z.shape))) & (ref <= MONROY2018_THRESHOLD)
     np.testing.assert_array_equal(discontinuity_test(z, known, "monroy2018", min_neighbours=min_nb).passed, expected)
-
-
-def _exposure_in_float64(rgb: np.ndarray, dark: float, bright: float) -> np.ndarray:
-    """The rule with every comparison made exactly (in float64); finiteness of the channel sum in the
-    colour's own precision (a float32 sum of channels near 3.4e38 overflows)."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        finite = np.isfinite(rgb[..., 0] + rgb[..., 1] + rgb[..., 2])
-    x = rgb.astype(np.float64)
-    return finite & ~(x < dark).all(axis=-1) & ~(x > bright).all(axis=-1)
 
 
 @pytest.mark.parametrize("dark, bright", [(0.05, 0.95), (1 / 3, 2 / 3), (0.0, 1.0), (-1e300, 1e300), (1e300, -1e300),
@@ -651,14 +599,14 @@ def test_float32_colour_is_judged_as_its_exact_value(dark, bright):
     rgb[0, :3] = [3e38, 3e38, 0.5]  # the float32 sum overflows; the float64 one does not
     z = np.full((40, 50), 2.0)
     known = np.ones(z.shape, bool)
-    expected = _exposure_in_float64(rgb, dark, bright)
+    expected = exposure_reference(rgb, dark, bright)
     assert not expected.all()
     got = mark_reliable(rgb, z, known, dark=dark, bright=bright, min_neighbours=3)
     np.testing.assert_array_equal(got, expected & discontinuity_test(z, known, min_neighbours=3).passed)
     np.testing.assert_array_equal(exposure_ok(rgb, dark=dark, bright=bright), expected)
     wide = rgb.astype(np.float64)  # the same values in float64: only the overflowing sums differ
     np.testing.assert_array_equal(mark_reliable(wide, z, known, dark=dark, bright=bright, min_neighbours=3),
-                                  _exposure_in_float64(wide, dark, bright) & discontinuity_test(z, known, min_neighbours=3).passed)
+                                  exposure_reference(wide, dark, bright) & discontinuity_test(z, known, min_neighbours=3).passed)
 
 
 @pytest.mark.parametrize("method", RELIABILITY_METHODS)

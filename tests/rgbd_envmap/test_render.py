@@ -11,8 +11,11 @@ References are independent of the code under test:
   correct Gouraud; screen-space-linear interpolation would be off by percents here);
 * clipping: a huge two-triangle floor through and behind the camera covers exactly the rows below the
   horizon up to the far plane (ray–plane intersection);
-* compositing: the sRGB encoding re-derived in float64 here (round half up of 255 · srgb(x)), linear
-  blending written out per pixel, ``colour.apply_ccm`` for the colour correction.
+* the numba rasteriser against rgbd_envmap.reference.render_raster (the z-buffer written out
+  triangle by triangle, clipping included), bit for bit;
+* compositing: the sRGB encoding in float64 (round half up of 255 · srgb(x)), linear blending written
+  out per pixel, ``colour.apply_ccm`` for the colour correction, and the whole composite with numpy
+  (all in rgbd_envmap.reference.render_composite), bit for bit.
 
 Tolerances:
     coverage of the rectangle: exact (edges 0.2–0.4 px from any pixel centre).
@@ -41,6 +44,8 @@ from rgbd_envmap.errors import (
     ShapeError,
     UnknownMethodError,
 )
+from rgbd_envmap.reference import render_composite as composite_ref
+from rgbd_envmap.reference import render_raster as raster_ref
 from rgbd_envmap.types import Intrinsics, RigidTransform
 
 EGL_OK, EGL_REASON = render.egl_available()
@@ -248,6 +253,41 @@ def test_empty_meshes_are_allowed(renderers, backend):
     assert layer.bbox is None and layer.is_empty
 
 
+def _reference_scenes():
+    T, centre, ov, of, pv, pf, pa = sphere_scene(subdivisions=2)
+    oc = smooth_colours(ov)
+    yield "sphere", T, ov, of, oc, pv, pf, pa
+    close = geometry.look_at(np.array([0.05, -0.04, 0.80]), centre)  # the camera inside the plane's span
+    yield "close", close, ov, of, oc, pv, pf, pa
+    inside = geometry.look_at(centre + np.array([0.02, 0.0, 0.0]), centre + np.array([1.0, 0.2, 0.1]))
+    yield "inside the sphere", inside, ov, of, oc, pv, pf, pa  # every face crosses or is behind near
+    floor = np.array([[-50, 0.5, -50], [50, 0.5, -50], [50, 0.5, 50], [-50, 0.5, 50]], float)
+    obj, obj_f = rect_at_depth(INTR, 100.25, 180.25, 80.4, 160.4, 1.0)
+    yield ("floor", np.eye(4), obj, obj_f, np.array([[0.2, 0.4, 0.6], [1.5, 0.1, 0.0], [0.3, 0.3, 0.3], [0.0, 0.9, 2.0]]),
+           floor, np.array([[0, 1, 2], [0, 2, 3]]), np.array([0.1, 0.5, 1.0, 0.7]))
+    plane_front, plane_f = rect_at_depth(INTR, 20.3, 300.3, 20.6, 220.6, 0.7)
+    yield "plane in front", np.eye(4), obj, obj_f, np.full((4, 3), 0.7), plane_front, plane_f, np.full(4, 0.6)
+    # corners on pixel centres: the edges, and the shared diagonal, run through pixel centres (tie rule)
+    aligned, aligned_f = rect_at_depth(INTR, 100.0, 180.0, 80.0, 160.0, 1.0)
+    back, back_f = rect_at_depth(INTR, 60.0, 220.0, 40.0, 200.0, 1.5)
+    yield ("pixel-aligned", np.eye(4), aligned, aligned_f, np.array([[0.1, 0.2, 0.3], [0.9, 0.1, 0.4], [0.5, 0.8, 0.2],
+                                                                     [0.3, 0.3, 0.9]]),
+           back, back_f, np.array([0.2, 0.9, 0.4, 0.6]))
+
+
+@pytest.mark.parametrize("crop", [True, False])
+def test_numba_rasteriser_matches_the_reference_bit_for_bit(crop):
+    with render.Renderer(INTR, backend="numba", crop=crop) as r:
+        for name, T, ov, of, oc, pv, pf, pa in _reference_scenes():
+            layer = draw(r, T, ov, of, oc, pv, pf, pa)
+            pose = T if isinstance(T, RigidTransform) else RigidTransform(np.asarray(T, float), "world", "cam")
+            colour, mask, alpha = raster_ref.rasterise(pose, INTR, r.near_m, r.far_m, ov, of, oc, pv, pf, pa)
+            assert mask.any() or alpha.any(), name
+            np.testing.assert_array_equal(layer.mask, mask, err_msg=name)
+            np.testing.assert_array_equal(layer.colour, colour, err_msg=name)
+            np.testing.assert_array_equal(layer.plane_alpha, alpha, err_msg=name)
+
+
 # ------------------------------------------------------------------------------------------------
 # The two backends against each other; per-frame updates
 # ------------------------------------------------------------------------------------------------
@@ -380,16 +420,8 @@ def test_layer_validates_and_is_read_only():
 # ------------------------------------------------------------------------------------------------
 
 
-def encode_ref(linear):
-    """Reference 8-bit sRGB encoding in float64 (IEC 61966-2-1), round half up, clipping to [0, 1]."""
-    x = np.clip(np.asarray(linear, np.float64), 0.0, 1.0)
-    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
-    return np.floor(255.0 * s + 0.5).astype(np.uint8)
-
-
-def decode_ref(codes):
-    s = np.asarray(codes, np.float64) / 255.0
-    return np.where(s <= 0.04045, s / 12.92, ((s + 0.055) / 1.055) ** 2.4)
+encode_ref = composite_ref.encode_srgb8
+decode_ref = composite_ref.decode_srgb8
 
 
 def make_layer(h=40, w=60, seed=0):
@@ -481,6 +513,16 @@ def test_shadow_plane_blends_in_linear_light():
     full = render.Layer(np.zeros((1, 1, 3), np.float32), np.zeros((1, 1), bool), np.ones((1, 1), np.float32),
                         (0, 1, 0, 1))
     np.testing.assert_array_equal(render.composite(flat, full, shadow_grey=0.3)[0, 0], encode_ref([0.3] * 3))
+
+
+@pytest.mark.parametrize("ccm", [None, "diag", "full"])
+@pytest.mark.parametrize("grey", [0.0, 0.15, 0.6])
+def test_composite_matches_the_reference(ccm, grey):
+    layer, frame = make_layer(seed=8), random_frame(seed=9)
+    m = {None: None, "diag": np.diag([1.2, 1.0, 0.8]),
+         "full": np.array([[0.9, 0.1, -0.05], [0.05, 1.1, 0.0], [-0.02, 0.08, 0.8]])}[ccm]
+    np.testing.assert_array_equal(render.composite(frame, layer, ccm_inverse=m, shadow_grey=grey),
+                                  composite_ref.composite(frame, layer, ccm_inverse=m, shadow_grey=grey))
 
 
 def test_hdr_and_negative_object_colours_are_clipped():

@@ -1,18 +1,22 @@
 """Tests for rgbd_envmap.sh: real SH basis, equirect projection with the stage-8 fill, irradiance.
 
-References are independent of the code under test: the DESIGN.md §3 table of the first 9 functions,
-scipy.special.sph_harm_y (complex SH) converted to the real Condon–Shortley basis, quadrature on an
-equirect grid with directions and solid angles re-derived here, Gauss–Legendre × uniform-azimuth
-quadrature (exact for band-limited products), closed-form coefficients of the constant and hemisphere
-functions, two implementations of the fill rule (a slow obvious per-pixel search and a vectorised
-one that shifts the mask one distance at a time) and a brute-force clamped-cosine convolution; for
-band selection, the shading T[:, :n²] @ L[:n²] formed explicitly for every n.
+References are independent of the code under test: the table of the first 9 functions in
+docs/reference/conventions.md, scipy.special.sph_harm_y (complex SH) converted to the real
+Condon–Shortley basis, quadrature on an equirect grid with directions and solid angles re-derived
+here, Gauss–Legendre × uniform-azimuth quadrature (exact for band-limited products), closed-form
+coefficients of the constant and hemisphere functions, two implementations of the fill rule in
+rgbd_envmap.reference.sh_fill (a slow obvious per-pixel search and a vectorised one that shifts the
+mask one distance at a time), the projection summed over pixels in float64
+(rgbd_envmap.reference.sh_projection) and a brute-force clamped-cosine convolution; for band
+selection, the shading T[:, :n²] @ L[:n²] formed explicitly for every n.
 
 Tolerances:
     basis vs scipy: 1e-6 absolute (both float64, values O(1)).
     orthonormality by equirect quadrature on 200×400: 1e-3 (midpoint-rule error ~ (l π / H)²;
         measured 1.4e-4 at l ≤ 7); by Gauss–Legendre quadrature: 1e-10 up to 30 bands (exact rule).
-    projection vs float64 brute force: 1e-5 relative to the largest coefficient (float32 row sums).
+    projection vs float64 brute force: 1e-5 relative to the largest coefficient (float32 row sums);
+        vs rgbd_envmap.reference.sh_projection on small maps: 1e-6.
+    fill plan, fill and tracker state vs rgbd_envmap.reference.sh_fill: exact.
     hemisphere at 3 bands: the 3-band result is exactly π/2 + (π/2) z (L_20 of the hemisphere is 0),
         so the only error is quadrature of the map, < 1e-4 at 250×500.
     band-selection errors vs explicit float64 shading: 1e-9 relative for float64 transfer and the
@@ -40,11 +44,13 @@ from rgbd_envmap.errors import (
     RgbdEnvmapError,
     ShapeError,
 )
+from rgbd_envmap.reference import sh_fill as fill_ref
+from rgbd_envmap.reference import sh_projection as projection_ref
 
 # --- independent references -----------------------------------------------------------------------
 
 def grid(H, W):
-    """(H, W, 3) float64 directions and (H, W) exact solid angles, from CONVENTIONS.md."""
+    """(H, W, 3) float64 directions and (H, W) exact solid angles, from docs/reference/conventions.md."""
     theta = np.pi * (np.arange(H) + 0.5) / H
     phi = 2 * np.pi * (np.arange(W) + 0.5) / W - np.pi
     T, P = np.meshgrid(theta, phi, indexing="ij")
@@ -59,7 +65,7 @@ def scipy_real_sh(dirs, bands):
 
     scipy's Y_l^m already carries the CS phase (Y_1^1 = −√(3/8π) sin θ e^{iφ}), so the real basis
     *with* the phase is m > 0: √2 Re Y_l^m; m < 0: √2 Im Y_l^|m|; m = 0: Y_l^0. An extra (−1)^m
-    factor would cancel the phase and give +0.488603 x for Y_1,1, contradicting DESIGN.md §3; the
+    factor would cancel the phase and give +0.488603 x for Y_1,1, contradicting the conventions; the
     test ``test_scipy_mapping_pins_condon_shortley_signs`` pins this."""
     d = dirs / np.linalg.norm(dirs, axis=-1, keepdims=True)
     theta = np.arccos(np.clip(d[..., 2], -1, 1))
@@ -76,33 +82,6 @@ def scipy_real_sh(dirs, bands):
                 v = y.real
             out[..., l * (l + 1) + m] = v
     return out
-
-
-def slow_fill(rad, valid, radius=50):
-    """The stage-8 rule written out: nearest data pixel along up/down/left/right, ties in that order."""
-    H, W, _ = rad.shape
-    out = np.zeros_like(rad, dtype=np.float64)
-    used = np.ones((H, W), bool)
-    for v in range(H):
-        for u in range(W):
-            if valid[v, u]:
-                out[v, u] = rad[v, u]
-                continue
-            best = None
-            for order, (dv, du) in enumerate([(-1, 0), (1, 0), (0, -1), (0, 1)]):
-                for dist in range(1, radius + 1):
-                    vv, uu = v + dv * dist, (u + du * dist) % W
-                    if not 0 <= vv < H:
-                        break
-                    if valid[vv, uu]:
-                        if best is None or (dist, order) < best[0]:
-                            best = ((dist, order), (vv, uu))
-                        break
-            if best is None:
-                used[v, u] = False
-            else:
-                out[v, u] = rad[best[1]]
-    return out, used
 
 
 def brute_project(rad, bands):
@@ -135,7 +114,7 @@ def test_first_nine_match_design_table():
 
 
 def test_scipy_mapping_pins_condon_shortley_signs():
-    # The reference conversion itself must give DESIGN's band-1 signs.
+    # The reference conversion itself must give the conventions' band-1 signs.
     Y = scipy_real_sh(np.array([[0.0, 1, 0], [0, 0, 1], [1, 0, 0]]), 2)
     np.testing.assert_allclose([Y[0, 1], Y[1, 2], Y[2, 3]], [-0.488603, 0.488603, -0.488603], atol=1e-6)
 
@@ -358,7 +337,7 @@ def test_fill_matches_slow_rule(seed, frac):
     valid = rng.uniform(size=(H, W)) > frac
     rad[~valid] = np.nan
     out, used = sh.fill_missing(rad, valid, radius_px=12)
-    want, want_used = slow_fill(rad, valid, radius=12)
+    want, want_used = fill_ref.fill_missing(rad, valid, radius_px=12)
     np.testing.assert_array_equal(used, want_used)
     np.testing.assert_array_equal(out[used], want[used].astype(np.float32))
     assert (out[~used] == 0).all()
@@ -400,7 +379,7 @@ def test_projection_with_missing_equals_projection_of_filled():
     valid = rng.uniform(size=(60, 120)) > 0.2
     valid[:, 10:75] = False  # a band wider than 2×50 px in longitude only partly fillable
     valid[:20] = False
-    want_rad, used = slow_fill(rad, valid, radius=50)
+    want_rad, used = fill_ref.fill_missing(rad, valid, radius_px=50)
     assert not used.all() and used.any()
     want = brute_project(np.where(used[..., None], want_rad, 0.0), 5)
     np.testing.assert_allclose(sh.project_equirect(rad, valid), want, atol=1e-5)
@@ -554,29 +533,6 @@ def test_project_planar_errors():
 
 # --- the stage-8 fill on realistic masks ------------------------------------------------------------
 
-def shift_fill(rad, valid, radius=50):
-    """The rule vectorised: for distance 1, 2, …, and within one distance up, down, left, right, a
-    pixel not yet filled takes the first data pixel found (rows clipped at the poles, columns wrap)."""
-    H, W = valid.shape
-    out = np.where(valid[..., None], rad, 0.0).astype(np.float32)
-    found = valid.copy()
-    for dist in range(1, radius + 1):
-        for dv, du in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-            src_ok = np.zeros((H, W), bool)
-            src_val = np.zeros((H, W, 3), np.float32)
-            if dv:
-                lo, hi = max(0, -dv * dist), min(H, H - dv * dist)  # rows whose source is on the map
-                if lo >= hi:
-                    continue
-                src_ok[lo:hi] = valid[lo + dv * dist:hi + dv * dist]
-                src_val[lo:hi] = rad[lo + dv * dist:hi + dv * dist]
-            else:
-                src_ok = np.roll(valid, -du * dist, axis=1)
-                src_val = np.roll(rad, -du * dist, axis=1)
-            take = ~found & src_ok
-            out[take] = src_val[take]
-            found |= take
-    return out, found
 
 
 def blob_crack_mask(H, W, frac, seed, cap_rows=0):
@@ -601,8 +557,8 @@ def test_vectorised_reference_matches_slow_rule():
         valid = rng.uniform(size=(20, 44)) > 0.7
         valid[:4] = False
         rad = rng.uniform(0, 1, (20, 44, 3)).astype(np.float32)
-        want, want_used = slow_fill(rad, valid, radius=7)
-        out, used = shift_fill(rad, valid, radius=7)
+        want, want_used = fill_ref.fill_missing(rad, valid, radius_px=7)
+        out, used = fill_ref.fill_missing_by_distance(rad, valid, radius_px=7)
         np.testing.assert_array_equal(used, want_used)
         np.testing.assert_array_equal(out, want.astype(np.float32))
 
@@ -615,7 +571,7 @@ def test_fill_and_projection_on_realistic_mask(cap_rows):
     H, W = 500, 1000
     valid = blob_crack_mask(H, W, 0.03, seed=cap_rows, cap_rows=cap_rows)
     rad = smooth_map(H, W, seed=14) + np.random.default_rng(14).uniform(0, 0.1, (H, W, 3)).astype(np.float32)
-    want, want_used = shift_fill(rad, valid)
+    want, want_used = fill_ref.fill_missing_by_distance(rad, valid)
     rad[~valid] = np.nan  # never read
     out, used = sh.fill_missing(rad, valid)
     np.testing.assert_array_equal(used, want_used)
@@ -651,7 +607,7 @@ def test_fill_property_matches_slow_rule(case):
     valid, radius, seed = case
     H, W = valid.shape
     rad = np.random.default_rng(seed).uniform(0, 1, (H, W, 3)).astype(np.float32)
-    want, want_used = slow_fill(rad, valid, radius=radius)
+    want, want_used = fill_ref.fill_missing(rad, valid, radius_px=radius)
     rad[~valid] = np.nan
     out, used = sh.fill_missing(rad, valid, radius_px=radius)
     np.testing.assert_array_equal(used, want_used)
@@ -659,6 +615,49 @@ def test_fill_property_matches_slow_rule(case):
     L = sh.project_equirect(rad, valid, bands=3, fill_radius_px=radius)
     ref = brute_project(np.where(want_used[..., None], want, 0.0), 3)
     assert np.abs(L - ref).max() <= 1e-6 * max(1.0, np.abs(ref).max())
+
+
+@settings(max_examples=60, deadline=None)
+@given(masks())
+def test_fill_plan_states_the_reference_sources_and_keys(case):
+    """The plan lists every missing pixel in raster order with the source and rank key the rule
+    gives it, and marks the rows that contribute nothing."""
+    valid, radius, _ = case
+    H, W = valid.shape
+    want_src, want_key = fill_ref.fill_sources(valid, radius)
+    plan = sh.fill_plan(valid, radius)
+    p = np.repeat(np.arange(H), np.diff(plan.row_ptr)) * W + plan.col
+    np.testing.assert_array_equal(p, np.flatnonzero(~valid.reshape(-1)))
+    np.testing.assert_array_equal(plan.src, want_src[p])
+    np.testing.assert_array_equal(plan.key, want_key[p])
+    contributes = valid.any(1) | (want_src.reshape(H, W) >= 0).any(1)
+    np.testing.assert_array_equal(plan.empty, ~contributes)
+
+
+@pytest.mark.parametrize("H,W,bands,radius", [(12, 24, 5, 50), (9, 27, 6, 3), (16, 20, 11, 5), (5, 6, 1, 2),
+                                              (1, 1, 3, 1)])
+def test_projection_matches_the_reference_sum(H, W, bands, radius):
+    """rgbd_envmap.reference.sh_projection sums Y_k · radiance · Ω over the filled pixels in float64;
+    the library's float32 row sums agree to float32 rounding."""
+    rng = np.random.default_rng(H * W + bands)
+    rad = rng.uniform(0, 1, (H, W, 3)).astype(np.float32)
+    valid = rng.uniform(size=(H, W)) > 0.5
+    valid[: H // 3] = False
+    planes = np.ascontiguousarray(np.moveaxis(rad, -1, 0))
+    for mask in (None, valid):
+        ref = projection_ref.project_equirect(rad, mask, bands, radius)
+        for L in (sh.project_equirect(rad, mask, bands, fill_radius_px=radius),
+                  sh.project_planar(planes, mask, bands, fill_radius_px=radius)):
+            assert np.abs(L - ref).max() <= 1e-6 * max(np.abs(ref).max(), 1e-300)
+
+
+def test_fill_plan_checks_its_arguments():
+    with pytest.raises(ShapeError):
+        sh.fill_plan(np.ones((2, 3, 1), bool))
+    with pytest.raises(DTypeError):
+        sh.fill_plan(np.ones((2, 3)))
+    with pytest.raises(RangeError):
+        sh.fill_plan(np.ones((2, 3), bool), 0)
 
 
 def test_fill_single_data_pixel_in_row_and_wrapping_runs():
@@ -823,7 +822,7 @@ def test_select_bands_bad_input():
 def _fresh_state(valid, radius):
     """The fill state a fresh plan gives: (src, key) per pixel, −2 / 0 at data pixels."""
     H, W = valid.shape
-    row_ptr, col, src, _, key = sh._plan(valid, radius)
+    row_ptr, col, src, _, key = sh.fill_plan(valid, radius)
     s = np.full(H * W, -2, np.int64)
     k = np.zeros(H * W, np.int64)
     rows = np.repeat(np.arange(H), np.diff(row_ptr))
@@ -872,6 +871,22 @@ def test_incremental_projection_follows_updates_exactly(shape, radius, bands):
     assert proj.incremental_updates > 10  # the incremental path ran, not only rebuilds
 
 
+def test_incremental_fill_state_is_the_reference_rule():
+    """The tracker's per-pixel fill state names the source and key the rule itself gives."""
+    from rgbd_envmap.envmap import EnvironmentMap
+
+    rng = np.random.default_rng(21)
+    em = EnvironmentMap(30, 60)
+    proj = sh.IncrementalProjection(4, fill_radius_px=6)
+    for _ in _capture_frames(em, rng, 8, trusted_every=5):
+        proj.coefficients(em)
+        src, key = proj._fill_state(60)
+        want_src, want_key = fill_ref.fill_sources(em.valid, 6)
+        np.testing.assert_array_equal(src, want_src)
+        np.testing.assert_array_equal(key, want_key)
+    assert proj.incremental_updates > 3
+
+
 def test_incremental_projection_of_a_full_map():
     """Every pixel has data: no fill at all, the state stays all data, only colour changes (A)."""
     from rgbd_envmap.envmap import EnvironmentMap
@@ -890,7 +905,7 @@ def test_incremental_projection_of_a_full_map():
 
 
 def test_incremental_projection_rebuilds_on_log_overflow_and_large_change_sets():
-    from rgbd_envmap.envmap import EnvironmentMap, _ChangeLog
+    from rgbd_envmap.envmap import ChangeLog, EnvironmentMap
 
     rng = np.random.default_rng(5)
     em = EnvironmentMap(40, 80)
@@ -898,7 +913,7 @@ def test_incremental_projection_rebuilds_on_log_overflow_and_large_change_sets()
     frames = _capture_frames(em, rng, 30)
     next(frames)
     proj.coefficients(em)
-    em._changes = _ChangeLog(2)  # the next update overflows this log
+    em.change_log = ChangeLog(2)  # the next update overflows this log
     next(frames)
     c = proj.coefficients(em)
     assert (proj.full_projections, proj.incremental_updates) == (2, 0)

@@ -1,0 +1,233 @@
+"""Environment capture (paper 003 §5–§6): colour correction against the map, then the map update.
+
+:class:`EnvironmentCapture` holds the environment map and the latest accepted colour-correction
+matrix (current camera colours → reference colours). Per ingested depth packet:
+
+1. The first frame defines the reference colour space: its matrix is the identity and it is
+   projected into the empty map.
+2. Later frames: pairs between the frame's *reliable* pixels (marked before hole filling) and the
+   map (|depth difference| ≤ 1 cm) → a 3×3 matrix. Gate: fewer than 500 pairs or MSE > 5e-2 (or an
+   ill-conditioned fit) → the previous accepted matrix stays in force for correcting colours and the
+   frame is **not** projected; the step records why.
+3. An accepted frame is corrected with its matrix and projected with the update rules
+   (:func:`rgbd_envmap.envmap.update`): every measured pixel, and the hole-filled pixels chosen by
+   ``filled_pixels`` (default, as the paper: ``"all"``). Eq. (1) averages sources on both sides
+   of a depth edge, so a hole at an edge (the ToF marks mixed pixels there) gets a depth in free space
+   between foreground and background; seen from the origin such a point lands on an arc across the
+   background and, being closer, wins it. ``"plane_consistent"`` projects a filled pixel
+   only when the filled depth passes the noise-model plane test of
+   :func:`rgbd_envmap.depth.reliability.discontinuity_test` (depth only, no exposure rule: the window
+   and screen must go in);
+   ``"none"`` projects measurements only.
+
+With ``colour_correction=False`` every frame is projected uncorrected (the paper's Fig. 4 left);
+``freeze=True`` keeps the map as it is (a static scene already captured) and only tracks the matrix.
+"""
+
+from __future__ import annotations
+
+import math
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from rgbd_envmap.checks import check_array, check_method, check_positive_int
+from rgbd_envmap.colour import (
+    CCM_METHODS,
+    DEFAULT_MAX_CONDITION,
+    DEFAULT_RIDGE,
+    SUMS_CCM_METHODS,
+    CCMResult,
+    ccm_from_sums,
+    estimate_ccm,
+)
+from rgbd_envmap.depth.reliability import discontinuity_passed
+from rgbd_envmap.errors import RangeError
+from rgbd_envmap.envmap.map import EnvironmentMap
+from rgbd_envmap.envmap.pairs import frame_pair_sums, frame_pairs, frame_samples
+from rgbd_envmap.envmap.map_update import SeenDepth, UpdateConfig, UpdateStats, update
+from rgbd_envmap.timing import StageTimer
+from rgbd_envmap.types import RGBDFrame
+
+__all__ = ["CaptureConfig", "CaptureStep", "EnvironmentCapture", "FILLED_PIXEL_MODES"]
+
+FILLED_PIXEL_MODES = ("plane_consistent", "all", "none")
+
+
+class _NullTimer:
+    @contextmanager
+    def stage(self, name: str):
+        yield
+
+
+_NO_TIMER = _NullTimer()
+
+
+@dataclass(frozen=True)
+class CaptureConfig:
+    """Colour-correction and map settings (the paper's, except ``ccm_method``, ``edge_margin_px`` and
+    the update's splatting, carving and averaging, which are ours)."""
+
+    height: int = 1000
+    width: int = 2000
+    #: pairs need the map's depth within this distance of the sample's (metres).
+    pair_max_depth_diff_m: float = 0.01
+    colour_correction: bool = True
+    #: "ridge" by default: plain least squares fits noise on the grey-dominated pairs of a room
+    #: (docs/design/colour_correction.md); "least_squares" is the paper's fit.
+    ccm_method: str = "ridge"
+    max_mse: float = 5e-2
+    min_pairs: int = 500
+    update: UpdateConfig = field(default_factory=UpdateConfig)
+    #: which hole-filled pixels go into the map: "all" (paper), "plane_consistent", "none". With the
+    #: edge margin on, "plane_consistent" measures no better than "all".
+    filled_pixels: str = "all"
+    #: samples within this many frame pixels of a depth edge (a pixel failing the plane test) do not
+    #: take map pixels over by the "closer" rule (they still fill empty pixels, and the trusted-sphere
+    #: and removal rules still apply); None: the paper's rules. Near an
+    #: object's border, depth noise scatters its samples across its silhouette seen from the origin,
+    #: and "closer" keeps every one that lands on the background (a running minimum over noise).
+    #: 1 px is best with the denoised depth (docs/design/envmap.md).
+    edge_margin_px: int | None = 1
+    freeze: bool = False
+
+    def __post_init__(self) -> None:
+        check_method(self.filled_pixels, FILLED_PIXEL_MODES, "filled_pixels")
+        check_method(self.ccm_method, CCM_METHODS, "ccm_method")
+        # What estimate_ccm would reject per frame, rejected once here (the fused fit skips its checks).
+        if not float(self.max_mse) >= 0.0:
+            raise RangeError(f"CaptureConfig.max_mse: expected a number ≥ 0, got {self.max_mse}")
+        check_positive_int(self.min_pairs, "CaptureConfig.min_pairs")
+
+
+@dataclass(frozen=True)
+class CaptureStep:
+    """What one frame did.
+
+    Attributes:
+        timestamp_ns: the frame's.
+        reference: this frame defined the reference colour space.
+        ccm: the fit for this frame (None for the reference frame or with correction off).
+        projected: the frame went into the map.
+        reason: why not, when not ("" otherwise).
+        n_pairs: colour pairs found.
+        matrix: (3, 3) the accepted matrix in force after this frame.
+        update: what the map update did (None when not projected).
+    """
+
+    timestamp_ns: int
+    reference: bool
+    ccm: CCMResult | None
+    projected: bool
+    reason: str
+    n_pairs: int
+    matrix: np.ndarray
+    update: UpdateStats | None
+
+
+class EnvironmentCapture:
+    """The environment map and the colour-correction state that feeds it."""
+
+    def __init__(self, origin: np.ndarray, config: CaptureConfig = CaptureConfig(), *, threads: int = 2) -> None:
+        """``threads``: for the colour pairs and the map update (1 or 2; the same results bit for bit)."""
+        self.config = config
+        self.threads = check_positive_int(threads, "threads")
+        self.em = EnvironmentMap(config.height, config.width, origin)
+        self.matrix = np.eye(3)
+        self.has_reference = False
+
+    def process(self, raw: RGBDFrame, reliable: np.ndarray, filled: RGBDFrame, *, across_edges: np.ndarray | None = None,
+                timer: StageTimer | None = None) -> CaptureStep:
+        """Process one ingested frame: ``raw`` (before hole filling) with its ``reliable`` mask, and
+        ``filled`` (after hole filling), both in the current camera's colour space. ``timer`` records
+        the stages "Collect paired samples", "Compute colour correction matrix" (the fit and its MSE)
+        and "Project sample to EM*".
+
+        ``across_edges``: (H, W) bool, filled pixels whose depth was interpolated across a depth edge
+        (:attr:`rgbd_envmap.ingest.tango.TangoIngestResult.across_edges`). They go into the map only
+        while the device is inside the trusted sphere (``config.update.trusted_radius_m`` of the
+        origin). Elsewhere their depth, somewhere between a foreground and a background, would put
+        them in free space, and seen from the origin they would cover what lies behind. Near the
+        origin the device sees what the origin sees, and the trusted rule relies on exactly that
+        (docs/design/hole_filling.md). None: every filled pixel goes in (the paper)."""
+        cfg = self.config
+        t = timer or _NO_TIMER
+        ts = raw.timestamp_ns
+        if not self.has_reference:
+            if not filled.known.any():
+                return CaptureStep(ts, False, None, False, "no known pixels for a reference frame", 0, self.matrix.copy(), None)
+            self.has_reference = True
+            stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t, across_edges)
+            return CaptureStep(ts, True, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
+        if not cfg.colour_correction:
+            stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t, across_edges)
+            return CaptureStep(ts, False, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
+        if cfg.ccm_method in SUMS_CCM_METHODS:
+            # The fit needs only the pairs' normal-equation sums: accumulated in the pair pass
+            # (bit-identical to collecting the pairs and summing them), so no pair array is stored.
+            with t.stage("Collect paired samples"):
+                *sums, n_found = frame_pair_sums(self.em, raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam,
+                                                 raw.rgb, cfg.pair_max_depth_diff_m, threads=self.threads)
+            with t.stage("Compute colour correction matrix"):
+                ccm = ccm_from_sums(*sums, cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs,
+                                    max_condition=DEFAULT_MAX_CONDITION, noise_std=None, ridge=DEFAULT_RIDGE)
+        else:
+            with t.stage("Collect paired samples"):
+                # collect_pairs(em, frame_points(raw.depth_m, reliable, …), raw.rgb[reliable]) in one pass.
+                src, dst = frame_pairs(self.em, raw.depth_m, reliable, raw.intrinsics, raw.T_world_from_cam, raw.rgb,
+                                       cfg.pair_max_depth_diff_m)
+                n_found = len(src)
+            with t.stage("Compute colour correction matrix"):
+                ccm = estimate_ccm(src, dst, method=cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs)
+        if not ccm.accepted:
+            return CaptureStep(ts, False, ccm, False, ccm.reason, n_found, self.matrix.copy(), None)
+        self.matrix = np.array(ccm.matrix, dtype=np.float64)
+        if cfg.freeze:
+            return CaptureStep(ts, False, ccm, False, "frozen", n_found, self.matrix.copy(), None)
+        stats = self._timed_project(raw, filled, self.matrix, t, across_edges)
+        return CaptureStep(ts, False, ccm, True, "", n_found, self.matrix.copy(), stats)
+
+    def projected_mask(self, raw: RGBDFrame, filled: RGBDFrame, across_edges: np.ndarray | None = None) -> np.ndarray:
+        """(H, W) bool: the pixels of ``filled`` that go into the map (see ``filled_pixels`` and
+        :meth:`process`'s ``across_edges``)."""
+        mode = self.config.filled_pixels
+        if mode == "all":
+            mask = filled.known
+        elif mode == "none":
+            mask = raw.known & filled.known
+        else:
+            consistent = discontinuity_passed(filled.depth_m, filled.known)
+            mask = filled.known & (raw.known | consistent)
+        if across_edges is None or mode == "none":
+            return mask
+        across = np.asarray(across_edges)
+        if across.shape != mask.shape or across.dtype != np.bool_:  # check_array's message, only when it fails
+            check_array(across, "across_edges", shape=mask.shape, dtype="bool")
+        o = raw.T_world_from_cam.translation - self.em.origin
+        if math.sqrt(o @ o) < self.config.update.trusted_radius_m:  # rule_trusted, without a compiled call
+            return mask
+        return mask & ~across
+
+    def _timed_project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray, timer,
+                       across_edges: np.ndarray | None = None) -> UpdateStats:
+        with timer.stage("Project sample to EM*"):
+            return self._project(raw, frame, matrix, across_edges)
+
+    def _project(self, raw: RGBDFrame, frame: RGBDFrame, matrix: np.ndarray, across_edges: np.ndarray | None = None) -> UpdateStats:
+        mask = self.projected_mask(raw, frame, across_edges)
+        near_edge = None
+        if self.config.edge_margin_px is not None:
+            plane = discontinuity_passed(frame.depth_m, frame.known)
+            edge = (frame.known & ~plane).view(np.uint8)
+            k = 2 * int(self.config.edge_margin_px) + 1
+            near_edge = cv2.dilate(edge, np.ones((k, k), np.uint8))
+        # frame_points(frame.depth_m, mask, …), frame.rgb[mask] and near_edge[mask] in one pass,
+        # and the colours corrected (apply_ccm(frame.rgb[mask], matrix), up to float32 rounding).
+        pts, colours, fill_only = frame_samples(frame.depth_m, mask, frame.intrinsics, frame.T_world_from_cam, frame.rgb,
+                                                near_edge, matrix)
+        focal = 0.5 * (frame.intrinsics.fx + frame.intrinsics.fy)
+        seen = SeenDepth(raw.depth_m, raw.known, raw.intrinsics, raw.T_world_from_cam)  # measured only
+        return update(self.em, pts, colours, frame.T_world_from_cam.translation, focal, self.config.update,
+                      None if near_edge is None else fill_only, seen, threads=self.threads)

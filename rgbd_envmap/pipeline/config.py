@@ -1,0 +1,93 @@
+"""The pipeline's configuration tree: :class:`PipelineConfig` and its sections.
+
+Each stage's own settings live beside the stage (:class:`~rgbd_envmap.ingest.tango.TangoIngestConfig`,
+:class:`~rgbd_envmap.ingest.kinect.KinectMergeConfig`, :class:`~rgbd_envmap.pipeline.capture.CaptureConfig`
+with its :class:`~rgbd_envmap.envmap.map_update.UpdateConfig`); this module nests them. Every config is a
+frozen dataclass that checks its values at construction; :mod:`rgbd_envmap.config` reads and writes
+the tree as YAML and applies ``section.key=value`` overrides.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from rgbd_envmap.checks import check_method, check_positive_int
+from rgbd_envmap.envmap.translation import TRANSLATE_METHODS
+from rgbd_envmap.errors import InvalidInputError
+from rgbd_envmap.ingest.kinect import KinectMergeConfig
+from rgbd_envmap.ingest.tango import TangoIngestConfig
+from rgbd_envmap.pipeline.capture import CaptureConfig
+
+__all__ = ["ShadingConfig", "ObjectConfig", "RenderConfig", "PipelineConfig"]
+
+
+@dataclass(frozen=True)
+class ShadingConfig:
+    """SH lighting: ``bands`` (5 = 25 coefficients per channel, the paper's), or the fewest bands whose
+    shading of the object stays within ``band_tolerance`` of ``max_bands`` (``auto_bands``)."""
+
+    bands: int = 5
+    auto_bands: bool = False
+    band_tolerance: float = 0.01
+    max_bands: int = 8
+
+
+@dataclass(frozen=True)
+class ObjectConfig:
+    """The virtual object and its shadow plane (PRT precomputed once, cached on disk)."""
+
+    name: str = "bunny"
+    height_m: float = 0.12
+    #: the object's base sits this far below the EM origin (the default scene's table top is 5 cm
+    #: under the virtual-object position).
+    base_below_origin_m: float = 0.05
+    prt_dirs: int = 1024
+    plane_size_m: float = 0.5
+    plane_resolution: int = 48
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Compositing: ``enabled=False`` skips the object entirely (capture only)."""
+
+    enabled: bool = True
+    #: "numba" (own rasteriser) or "pyrender" (the reference, OpenGL through EGL): docs/design/render.md.
+    backend: str = "numba"
+    shadow_grey: float = 0.15
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Every setting of the pipeline (loadable from YAML: :mod:`rgbd_envmap.config`). Defaults are the
+    paper's where it gives one; docs/guide.md lists which are ours."""
+
+    ingest: TangoIngestConfig = field(default_factory=TangoIngestConfig)
+    #: the Kinect path's warp + merge (sensor "kinect": registered depth + colour images).
+    kinect: KinectMergeConfig = field(default_factory=KinectMergeConfig)
+    capture: CaptureConfig = field(default_factory=CaptureConfig)
+    shading: ShadingConfig = field(default_factory=ShadingConfig)
+    object: ObjectConfig = field(default_factory=ObjectConfig)
+    render: RenderConfig = field(default_factory=RenderConfig)
+    #: EM translation when the object moves: "depth" (paper §6.2) or "gardner" (sphere baseline).
+    translation_method: str = "depth"
+    #: threads of the map update, the colour pairs and the map translation (1 or 2; more are used as
+    #: 2). Every result is the same bit for bit on one thread; two are faster on two free cores.
+    threads: int = 2
+    #: a depth packet pairs with the colour frame nearest in time, if within this lag.
+    max_colour_lag_ms: float = 20.0
+    #: Kinect path: warp + merge run on every frame (30 Hz); correction, the EM update and SH run on
+    #: every n-th merged frame (6: 5 Hz, the Tango's depth rate) ...
+    kinect_em_every: int = 6
+    #: ... on the merged frame subsampled by this stride (2: 320×240 samples, 307k → 77k per update;
+    #: the update's footprint splat scales with the focal length, so coverage holds).
+    kinect_em_stride: int = 2
+
+    def __post_init__(self) -> None:
+        check_method(self.translation_method, TRANSLATE_METHODS, "translation_method")
+        check_positive_int(self.threads, "PipelineConfig.threads")
+        if not self.max_colour_lag_ms >= 0:
+            raise InvalidInputError(f"max_colour_lag_ms: expected ≥ 0, got {self.max_colour_lag_ms}")
+        if self.kinect_em_every < 1 or self.kinect_em_stride < 1:
+            raise InvalidInputError(f"kinect_em_every / kinect_em_stride: expected ≥ 1, got {self.kinect_em_every} / {self.kinect_em_stride}")
+        if self.shading.bands < 1 or self.shading.max_bands < 1:
+            raise InvalidInputError(f"shading.bands / max_bands: expected ≥ 1, got {self.shading.bands} / {self.shading.max_bands}")

@@ -1,0 +1,391 @@
+"""The capture-and-relight pipeline of paper 003, run per sensor packet, with per-stage timing.
+
+:class:`Pipeline` consumes the device's packets in delivery order, as the paper's implementation
+does (§7.2, §8):
+
+- A **depth packet** (5 Hz) runs the whole chain once its colour frame is there (the colour frame
+  with the nearest timestamp within ``max_colour_lag_ms``; the Tango delivers both together):
+  NV21 → linear RGB, point cloud → RGB-D frame, depth denoising (ours; ``ingest.denoise_half_window``),
+  reliability marking, hole filling, paired samples, colour-correction matrix (with its gate), EM
+  update (the paper's rules plus free-space carving, ours), SH projection, and the object's shading
+  (PRT transfer × SH coefficients) and shadow-plane alphas.
+- Every **colour frame** (30 Hz) is composited: the object, shaded in the reference colour space with
+  the latest SH coefficients, is mapped into the frame's colour space by the inverse of the latest
+  accepted correction matrix, rasterised with a virtual camera matching the colour camera, and drawn
+  over the frame with its soft shadow.
+
+Stages are timed under the names of the paper's Table 1 (:data:`STAGES`); ``depth_frame_total`` is all
+stages of a depth packet except rendering, ``colour_frame_total`` is shade + rasterise + composite of
+a colour frame. The EM is the only state besides the latest matrix, coefficients and shading.
+
+The object stands on the surface under the EM origin: its base is ``object.base_below_origin_m``
+below the origin (the EM origin is the paper's "virtual object position"). :meth:`Pipeline.move_object`
+displaces it; the lighting then comes from the EM translated to the new position (§6.2), either as
+a temporary view (recomputed after each update) or permanently (the map itself moves).
+
+References:
+    Monroy, Hudon, Smolic (2018), §4–§8, Table 1.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from rgbd_envmap import sh
+from rgbd_envmap.checks import check_array
+from rgbd_envmap.colour import decode_nv21
+from rgbd_envmap.envmap.map import EnvironmentMap
+from rgbd_envmap.envmap.translation import translate
+from rgbd_envmap.errors import InvalidInputError
+from rgbd_envmap.ingest.kinect import KinectMerger, kinect_rgbd_frame
+from rgbd_envmap.ingest.tango import colour_filled, registration_matrix, rgbd_frame_from_packets
+from rgbd_envmap.pipeline.capture import CaptureStep, EnvironmentCapture
+from rgbd_envmap.pipeline.config import PipelineConfig
+from rgbd_envmap.timing import StageTimer
+from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, RGBDFrame
+
+__all__ = ["DepthStep", "ColourStep", "Pipeline", "STAGES", "DEPTH_TOTAL", "COLOUR_TOTAL", "PAPER_TABLE1_MS"]
+
+#: stage names, in pipeline order, and the paper's Table 1 figure for each (None: no counterpart).
+STAGES = (
+    "Warp + merge depth (Kinect)", "Depth image to RGB-D",
+    "YUV420 to linear RGB", "Point cloud to RGB-D", "Denoise depth", "Mark reliable RGB-D", "Hole filling RGB-D",
+    "Collect paired samples", "Compute colour correction matrix", "Calculate MSE", "Project sample to EM*",
+    "EM translation", "Calculate SH coefficients*", "Select SH bands", "Shade object (PRT)",
+    "Decode colour frame", "Rasterise", "Composite",
+)
+DEPTH_TOTAL = "depth_frame_total"
+COLOUR_TOTAL = "colour_frame_total"
+#: stages that are not part of a depth frame's total (they belong to rendering a colour frame).
+RENDER_STAGES = ("Decode colour frame", "Rasterise", "Composite")
+#: a colour frame's total: everything it does to be shown (decode, shade when due, rasterise, composite).
+PAPER_TABLE1_MS = {
+    "Transfer data to GPU": 10.02, "YUV420 to linear RGB": 1.00, "Point cloud to RGB-D": 2.69,
+    "Mark reliable RGB-D": 0.06, "Hole filling RGB-D": 0.08, "Collect paired samples": 2.35,
+    "Compute colour correction matrix": 13.97, "Calculate MSE": 2.69, "Project sample to EM*": 0.21,
+    "Calculate SH coefficients*": 0.46, "EM translation": 28.02, "Render frame": 20.7, "Total": 54.22,
+}
+
+
+@dataclass(frozen=True)
+class DepthStep:
+    """What one depth packet did.
+
+    Attributes:
+        timestamp_ns: the depth packet's.
+        colour_timestamp_ns: the colour frame it was paired with.
+        capture: colour correction + EM update outcome (:class:`~rgbd_envmap.pipeline.capture.CaptureStep`).
+        raw_depth_m, filled_depth_m, filled_known, raw_known: the ingested frame before / after hole
+            filling ((H, W) in the depth sensor's grid), for error measurement.
+        sh_updated: the SH coefficients were recomputed.
+        bands: SH bands in use after this packet.
+    """
+
+    timestamp_ns: int
+    colour_timestamp_ns: int
+    capture: CaptureStep
+    raw_depth_m: np.ndarray
+    raw_known: np.ndarray
+    filled_depth_m: np.ndarray
+    filled_known: np.ndarray
+    sh_updated: bool
+    bands: int
+
+
+@dataclass(frozen=True)
+class ColourStep:
+    """A composited colour frame: ``image`` (H, W, 3) uint8 sRGB, or None with rendering off."""
+
+    timestamp_ns: int
+    image: np.ndarray | None
+    frame_srgb: np.ndarray
+
+
+class Pipeline:
+    """Runs the stages per packet (see the module docstring); ``feed`` packets in delivery order."""
+
+    def __init__(
+        self,
+        config: PipelineConfig,
+        calibration: Calibration,
+        origin: np.ndarray,
+        *,
+        cache_dir: str | Path | None = None,
+        timer: StageTimer | None = None,
+    ) -> None:
+        self.config = config
+        self.calibration = calibration
+        self.capture = EnvironmentCapture(check_array(origin, "origin", shape=(3,), finite=True), config.capture,
+                                          threads=config.threads)
+        self.timer = timer or StageTimer()
+        self._merger = KinectMerger(calibration.depth, config.kinect) if calibration.sensor == "kinect" else None
+        self._kinect_frames = 0
+        max_bands = max(config.shading.bands, config.shading.max_bands if config.shading.auto_bands else 1)
+        self.sh_bands_computed = max_bands
+        self.bands = config.shading.bands
+        self.coeffs = np.zeros((max_bands * max_bands, 3))
+        # Follows the map's updates: after the first frame only the written pixels are projected.
+        self._projection = sh.IncrementalProjection(max_bands)
+        self.has_lighting = False
+        self.object_offset = np.zeros(3)
+        self._translated: EnvironmentMap | None = None  # the last translated view, overwritten by the next
+        self._pending_depth: DepthPacket | None = None
+        self._decode_ms = 0.0
+        self._last_colour: tuple[ColourPacket, np.ndarray] | None = None
+        self.depth_steps = 0
+        self.dropped_depth = 0
+        self._renderer = None
+        self._object = None
+        self._transfer = None
+        self._plane = None
+        self._cache_dir = cache_dir
+        self.colours: np.ndarray | None = None  # (V, 3) shaded object, reference colour space
+        self._shade_out: np.ndarray | None = None
+        self._gram = None
+        self.plane_alpha: np.ndarray | None = None
+        if config.render.enabled or config.shading.auto_bands:
+            self._load_object()
+
+    # --- the virtual object --------------------------------------------------------------------------
+
+    def _load_object(self) -> None:
+        from rgbd_envmap import assets, prt
+
+        oc = self.config.object
+        bands = self.sh_bands_computed
+        self._object = assets.load_virtual_object(oc.name, height_m=oc.height_m, cache_dir=self._cache_dir)
+        self._transfer = prt.load_or_compute(self._object, bands, n_dirs=oc.prt_dirs, cache_dir=self._cache_dir)
+        self._plane = prt.shadow_plane(
+            self._object, size_m=oc.plane_size_m, resolution=oc.plane_resolution, bands=bands, n_dirs=oc.prt_dirs,
+            cache_dir=self._cache_dir,
+        )
+
+    @property
+    def object_base(self) -> np.ndarray:
+        """(3,) world position of the object's base (moves with :meth:`move_object`)."""
+        return self.capture.em.origin + self.object_offset - np.array([0.0, 0.0, self.config.object.base_below_origin_m])
+
+    def move_object(self, offset: np.ndarray, *, permanent: bool = False) -> None:
+        """Move the object by ``offset`` (metres, world) from the EM origin. Temporary: the lighting
+        comes from the map translated to the new position, recomputed after each update; permanent:
+        the map itself is translated (§6.2) and its origin moves."""
+        off = check_array(offset, "offset", shape=(3,), finite=True).astype(np.float64)
+        if permanent:
+            with self.timer.stage("EM translation"):
+                self.capture.em = translate(self.capture.em, self.object_offset + off, self.config.translation_method,
+                                            threads=self.config.threads)
+            self.object_offset = np.zeros(3)
+        else:
+            self.object_offset = self.object_offset + off
+        self._relight()
+
+    # --- packets -------------------------------------------------------------------------------------
+
+    def feed(self, packet: DepthPacket | ColourPacket) -> list[DepthStep | ColourStep]:
+        """Process one packet; returns what it produced (a depth step and / or a composited frame)."""
+        if self._merger is not None:
+            raise InvalidInputError("feed: a 'kinect' pipeline takes registered RGB-D frames; use feed_rgbd")
+        lag_ns = self.config.max_colour_lag_ms * 1e6
+        out: list[DepthStep | ColourStep] = []
+        if isinstance(packet, DepthPacket):
+            if self._pending_depth is not None:
+                self.dropped_depth += 1
+            self._pending_depth = packet
+            last = self._last_colour
+            if last is not None and abs(last[0].timestamp_ns - packet.timestamp_ns) <= lag_ns:
+                self.timer.begin("depth")
+                out.append(self._depth_step(packet, last[0], last[1]))
+                self._pending_depth = None
+            return out
+        if not isinstance(packet, ColourPacket):
+            raise InvalidInputError(f"packet: expected a DepthPacket or ColourPacket, got {type(packet).__name__}")
+        colour_frame = self.timer.begin("colour")
+        t0 = time.perf_counter()
+        srgb8 = decode_nv21(packet.nv21, packet.height, packet.width)
+        self._decode_ms = (time.perf_counter() - t0) * 1e3
+        self.timer.add("Decode colour frame", self._decode_ms)
+        self._last_colour = (packet, srgb8)
+        pending = self._pending_depth
+        if pending is not None:
+            if abs(packet.timestamp_ns - pending.timestamp_ns) <= lag_ns:
+                self.timer.begin("depth")
+                out.append(self._depth_step(pending, packet, srgb8))
+                self._pending_depth = None
+                self.timer.resume(colour_frame, "colour")
+            elif packet.timestamp_ns - pending.timestamp_ns > lag_ns:
+                self.dropped_depth += 1
+                self._pending_depth = None
+        out.append(self._colour_step(packet, srgb8))
+        return out
+
+    def finish(self) -> None:
+        """End of stream: a depth packet still waiting for its colour frame is dropped (counted)."""
+        if self._pending_depth is not None:
+            self.dropped_depth += 1
+            self._pending_depth = None
+
+    def feed_rgbd(self, timestamp_ns: int, rgb_srgb8: np.ndarray, depth_m: np.ndarray, known: np.ndarray,
+                  T_world_from_cam) -> list[DepthStep | ColourStep]:
+        """Process one registered RGB-D frame of a Kinect-like sensor (paper 001 §4.2): warp the
+        previous filtered depth into this view and merge it with the new depth, then the same stages
+        as a Tango frame (reliability, correction, EM, SH, shading), then composite this frame.
+
+        Args:
+            rgb_srgb8: (H, W, 3) uint8 sRGB colour, registered to the depth (one pixel grid).
+            depth_m: (H, W) float z-depth in metres, meaningful where ``known``.
+            known: (H, W) bool.
+            T_world_from_cam: the camera's pose (RigidTransform).
+        """
+        if self._merger is None:
+            raise InvalidInputError(f"feed_rgbd needs a 'kinect' calibration, got {self.calibration.sensor!r}")
+        t = self.timer
+        cfg = self.config
+        t.begin("depth")
+        with t.stage("Warp + merge depth (Kinect)"):
+            merged = self._merger.step(depth_m, known, T_world_from_cam)
+        out: list[DepthStep | ColourStep] = []
+        self._kinect_frames += 1
+        if (self._kinect_frames - 1) % cfg.kinect_em_every == 0:
+            self.depth_steps += 1
+            s = cfg.kinect_em_stride
+            intr = self.calibration.depth
+            if s > 1:
+                intr = dataclasses.replace(intr, width=len(range(0, intr.width, s)), height=len(range(0, intr.height, s)),
+                                           fx=intr.fx / s, fy=intr.fy / s, cx=intr.cx / s, cy=intr.cy / s)
+            with t.stage("Depth image to RGB-D"):
+                frame = kinect_rgbd_frame(merged.depth_m[::s, ::s], merged.known[::s, ::s], np.asarray(rgb_srgb8)[::s, ::s],
+                                          T_world_from_cam, intr, timestamp_ns)
+            raw = np.where(known, depth_m, 0).astype(np.float32)[::s, ::s]
+            out.append(self._capture_and_relight(frame, frame, depth_m=raw, known=np.asarray(known)[::s, ::s]))
+        t.begin("colour")
+        out.append(self._render(int(timestamp_ns), T_world_from_cam, np.asarray(rgb_srgb8)))
+        return out
+
+    def _depth_step(self, depth: DepthPacket, colour: ColourPacket, srgb8: np.ndarray) -> DepthStep:
+        from rgbd_envmap.depth import mark_reliable
+        from rgbd_envmap.depth.denoise import denoise_frame
+
+        cfg = self.config
+        t = self.timer
+        cal = self.calibration
+        self.depth_steps += 1
+        # The paired colour frame was decoded once, on arrival; its time counts in this frame too.
+        t.add("YUV420 to linear RGB", self._decode_ms)
+        with t.stage("Point cloud to RGB-D"):
+            frame, _ = rgbd_frame_from_packets(depth, srgb8, colour.T_world_from_colour, cal, cfg.ingest)
+        if cfg.ingest.denoise_half_window is not None:
+            with t.stage("Denoise depth"):
+                frame = denoise_frame(frame, half_window=cfg.ingest.denoise_half_window,
+                                      tol_rel=cfg.ingest.denoise_tol_rel, min_inliers=cfg.ingest.denoise_min_inliers)
+        with t.stage("Mark reliable RGB-D"):
+            reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=cfg.ingest.reliability_method)
+        across = None
+        if cfg.ingest.fill_method is None:
+            filled = frame
+        else:
+            with t.stage("Hole filling RGB-D"):
+                d, k, across = cfg.ingest.fill(frame.depth_m, frame.known)
+                m_cd = registration_matrix(depth, colour.T_world_from_colour, cal, cfg.ingest.registration)
+                filled = colour_filled(frame, d, k, srgb8, m_cd, cal.colour)
+        out = self._capture_and_relight(frame, filled, reliable=reliable, across_edges=across)
+        return replace(out, timestamp_ns=depth.timestamp_ns, colour_timestamp_ns=colour.timestamp_ns)
+
+    def _capture_and_relight(self, frame: RGBDFrame, filled: RGBDFrame, *, reliable: np.ndarray | None = None,
+                             depth_m: np.ndarray | None = None, known: np.ndarray | None = None,
+                             across_edges: np.ndarray | None = None) -> DepthStep:
+        """Reliability (unless given), correction + EM update, SH and shading of one ingested frame.
+        ``depth_m`` / ``known``: the sensor's own measurement when ``frame`` is already a merge of it;
+        ``across_edges``: the hole filling's flags (:class:`rgbd_envmap.ingest.tango.TangoIngestResult`)."""
+        from rgbd_envmap.depth import mark_reliable
+
+        t = self.timer
+        if reliable is None:
+            with t.stage("Mark reliable RGB-D"):
+                reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=self.config.ingest.reliability_method)
+        step = self.capture.process(frame, reliable, filled, across_edges=across_edges, timer=t)
+        sh_updated = False
+        if step.projected or not self.has_lighting:
+            if self.capture.em.valid.any():
+                self._relight()
+                sh_updated = True
+        raw_depth = frame.depth_m if depth_m is None else depth_m
+        raw_known = frame.known if known is None else known
+        return DepthStep(frame.timestamp_ns, frame.timestamp_ns, step, raw_depth, raw_known,
+                         filled.depth_m, filled.known, sh_updated, self.bands)
+
+    def _lighting_map(self) -> EnvironmentMap:
+        if not self.object_offset.any():
+            return self.capture.em
+        with self.timer.stage("EM translation"):
+            # Into last frame's view: its arrays are already paged in (a fresh 34 MB map costs page faults).
+            self._translated = translate(self.capture.em, self.object_offset, self.config.translation_method,
+                                         out=self._translated, threads=self.config.threads)
+            return self._translated
+
+    def _relight(self) -> None:
+        """SH coefficients of the (possibly translated) map → band choice → shading of the object."""
+        em = self._lighting_map()
+        if not em.valid.any():
+            return
+        with self.timer.stage("Calculate SH coefficients*"):
+            self.coeffs = self._projection.coefficients(em)
+        self.has_lighting = True
+        sc = self.config.shading
+        if sc.auto_bands and self._transfer is not None:
+            with self.timer.stage("Select SH bands"):
+                if self._gram is None:
+                    self._gram = sh.transfer_gram(self._transfer)  # once per object, not per selection
+                self.bands = sh.select_bands(self.coeffs, self._gram, tolerance=sc.band_tolerance, max_bands=sc.max_bands).bands
+        if self._object is not None:
+            self._shade()
+
+    def _shade(self) -> None:
+        from rgbd_envmap import prt
+
+        n = self.bands * self.bands
+        with self.timer.stage("Shade object (PRT)"):
+            if self._shade_out is None:
+                self._shade_out = np.empty((len(self._transfer), 3), np.float32)
+            # A fresh buffer per call, not the one the renderer may still hold: swap two buffers.
+            self._shade_out, out = self.colours, self._shade_out
+            self.colours = prt.shade(self._transfer[:, :n], self.coeffs[:n], self._object.albedo, out=out)
+            self.plane_alpha = prt.shadow_alpha(self._plane, self.coeffs[:n])
+
+    def _colour_step(self, packet: ColourPacket, srgb8: np.ndarray) -> ColourStep:
+        return self._render(packet.timestamp_ns, packet.T_world_from_colour, srgb8)
+
+    def _render(self, timestamp_ns: int, T_world_from_colour, srgb8: np.ndarray) -> ColourStep:
+        if not self.config.render.enabled or self.colours is None:
+            return ColourStep(timestamp_ns, None, srgb8)
+        from rgbd_envmap import render
+
+        if self._renderer is None:
+            self._renderer = render.Renderer(self.calibration.colour, backend=self.config.render.backend)
+        base = self.object_base
+        with self.timer.stage("Rasterise"):
+            layer = self._renderer.render(
+                T_world_from_colour,
+                self._object.vertices + base, self._object.faces, self.colours,
+                self._plane.vertices + base, self._plane.faces, self.plane_alpha,
+            )
+        with self.timer.stage("Composite"):
+            image = render.composite(srgb8, layer, ccm_inverse=np.linalg.inv(self.capture.matrix),
+                                     shadow_grey=self.config.render.shadow_grey)
+        return ColourStep(timestamp_ns, image, srgb8)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __enter__(self) -> "Pipeline":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+

@@ -1,0 +1,100 @@
+"""Compositing a rendered :class:`~rgbd_envmap.render.layer.Layer` over the live colour frame
+(paper 003 §7.2; docs/design/overview.md, stage 10).
+
+:func:`composite` maps the object's colours from the reference colour space into the current
+frame's by the inverse of the latest accepted correction matrix, clips and sRGB-encodes them and
+draws them over the frame; the shadow plane is a dark-grey plane alpha-blended **in linear light**
+(docs/design/render.md explains the choice). The 8-bit encoding is exact (round half up of
+255 · srgb(x) in float64) by a lookup table (:func:`srgb8_encoder`). The per-pixel loop is in
+:mod:`rgbd_envmap._kernels.composite`; the same in plain numpy:
+:func:`rgbd_envmap.reference.render_composite.composite`.
+
+References:
+    Monroy, Hudon, Smolic (2018), Dynamic Environment Mapping for Augmented Reality Applications on
+    Mobile Devices, §7.1 (dark-grey shadow plane with alpha from the irradiance ratio) and §7.2
+    (compositing with the inverse correction matrix).
+    IEC 61966-2-1:1999 (sRGB transfer function).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from rgbd_envmap._kernels import composite as kernels
+from rgbd_envmap.checks import check_array
+from rgbd_envmap.colour import srgb8_to_linear_lut, srgb_to_linear
+from rgbd_envmap.errors import DTypeError, RangeError, RgbdEnvmapError, ShapeError
+from rgbd_envmap.render.layer import Layer
+
+__all__ = ["composite", "srgb8_encoder"]
+
+ENCODE_BINS = kernels.ENCODE_BINS
+
+
+@lru_cache(maxsize=1)
+def srgb8_encoder() -> tuple[np.ndarray, np.ndarray]:
+    """The (read-only, cached) tables of the exact 8-bit sRGB encoder of :func:`composite`.
+
+    ``thresholds`` (256,) float64 holds the 255 linear values at which the code steps up, then +inf,
+    so code(x) = #{t_k ≤ x} = round-half-up(255 · srgb(x)) (evaluated in float64); ``base``
+    (ENCODE_BINS,) uint8 is that count at each bin's lower edge. Consecutive thresholds are at least
+    3.0e-4 apart (at the dark end) > 1/4096, so a bin holds at most one step: the code of x is
+    ``base[bin] + (x ≥ thresholds[base[bin]])``."""
+    t = srgb_to_linear((np.arange(1, 256, dtype=np.float64) - 0.5) / 255.0)
+    if np.diff(t).min() <= 1.0 / ENCODE_BINS:  # a guard on the reasoning above, not on user input
+        raise RgbdEnvmapError("sRGB encoder table: bins too coarse")
+    base = np.searchsorted(t, np.arange(ENCODE_BINS) / ENCODE_BINS, side="right").astype(np.uint8)
+    t = np.append(t, np.inf)
+    for a in (t, base):
+        a.setflags(write=False)
+    return t, base
+
+
+def composite(frame_srgb: np.ndarray, layer: Layer, *, ccm_inverse: np.ndarray | None = None,
+              shadow_grey: float = 0.15) -> np.ndarray:
+    """Draw a rendered :class:`Layer` over a live colour frame (paper 003 §7.2).
+
+    The object's colours are in the reference colour space; ``ccm_inverse`` (the inverse of the latest
+    accepted correction matrix, :func:`rgbd_envmap.colour.invert_ccm`) maps them into this frame's
+    space (``dst = rgb @ ccm_inverse.T``, :func:`rgbd_envmap.colour.apply_ccm`'s convention). They are
+    then clipped to [0, 1], sRGB-encoded and written where ``layer.mask`` is set. Where the shadow
+    plane is visible the frame is blended towards a grey plane, **in linear light**:
+    ``out = (1 − α) · frame + α · grey`` with ``frame`` decoded from sRGB and ``grey`` =
+    ``ccm_inverse @ (shadow_grey, shadow_grey, shadow_grey)`` (the plane is virtual content in the
+    reference space, like the object). With ``shadow_grey = 0`` this is the physical attenuation
+    ``frame · (1 − α)``; docs/design/render.md explains why not in sRGB. 8-bit codes round half up.
+
+    Args:
+        frame_srgb: (H, W, 3) uint8 sRGB, the live colour frame (not modified).
+        layer: a :class:`Layer` of the same (H, W).
+        ccm_inverse: (3, 3) finite float, or None for the identity (frame space = reference space).
+        shadow_grey: linear grey level of the shadow plane in the reference space, ≥ 0.
+
+    Returns:
+        (H, W, 3) uint8 sRGB, a new array; equal to ``frame_srgb`` bit for bit where the layer is empty.
+    """
+    frame = check_array(frame_srgb, "frame_srgb", shape=("H", "W", 3), dtype=np.uint8)
+    if not isinstance(layer, Layer):
+        raise DTypeError(f"layer: expected a Layer, got {type(layer).__name__}")
+    if frame.shape[:2] != layer.shape:
+        raise ShapeError(f"layer: expected the frame's size {frame.shape[:2]}, got {layer.shape}")
+    grey_level = float(shadow_grey)
+    if not np.isfinite(grey_level) or grey_level < 0.0:
+        raise RangeError(f"shadow_grey: expected a finite value >= 0, got {shadow_grey}")
+    if ccm_inverse is None:
+        m = np.eye(3)
+        use_m = False
+    else:
+        m = check_array(ccm_inverse, "ccm_inverse", shape=(3, 3), dtype=("float", "int"), finite=True)
+        m = np.ascontiguousarray(m, dtype=np.float64)
+        use_m = True
+    out = frame.copy()
+    if layer.bbox is None:
+        return out
+    grey = m @ np.full(3, grey_level)
+    r0, r1, c0, c1 = layer.bbox
+    kernels.composite(out, layer.colour, layer.mask, layer.plane_alpha, r0, r1, c0, c1, m, use_m, grey,
+                      srgb8_to_linear_lut(), *srgb8_encoder())
+    return out
