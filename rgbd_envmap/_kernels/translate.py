@@ -70,11 +70,11 @@ def atan2_f32(y, x):  # pragma: no cover - compiled
 
 #: The output pass prefetches the source colours of the pixel this many pixels ahead: the winners of
 #: neighbouring target pixels come from source rows far apart where the move magnifies or shears
-#: (128: 0.3 ms less than 64; 32 was 0.8 ms slower, 256 no better).
+#: (128 measured best of 32 to 256).
 _GATHER_AHEAD = 128
 
 #: The one-pixel key updates prefetch the target key of the source pixel this many columns ahead
-#: (16 before the fourth round; 64: 1.7-2.5 ms less, 128: about 0.5 ms less again, 256 no better).
+#: (128 measured best of 16 to 256).
 _SCATTER_AHEAD = 128
 
 #: The 2×2 and magnified footprints prefetch the keys of the footprint this many list entries ahead.
@@ -211,8 +211,7 @@ def _splat_targets(valid, r, pv, pu, pd, sr, hv, hu, height, width, max_splat, m
 
     For the caller's scalar loops, also per pixel: t1, the target of a one-pixel footprint or else a
     spare key's index (n + c % :data:`N_SPARE`); keys, the pixel's z-buffer key (distance bits,
-    source index). Computing them here costs 0.3-0.8 ms a map; computing them in the scalar loop
-    cost 2 ms."""
+    source index): here, vectorised, they cost well under half of what the scalar loop took."""
     fw, fh = np.float32(width), np.float32(height)
     half, one = np.float32(0.5), np.float32(1.0)
     lim_v = np.float32(max_splat)
@@ -242,8 +241,8 @@ def _splat_targets(valid, r, pv, pu, pd, sr, hv, hu, height, width, max_splat, m
         t_a, t_d = ra * width + ca, rb * width + cb
         # A larger footprint keeps ta and, in tb..td, its column count (0 where the column limit of
         # its landing row may differ from the minimum used here), first and last row: its loop
-        # then needs no spans of its own (the stage 4.7 → 3.5 ms on the true map). New arrays for
-        # them cost more than that: past eight arrays, LLVM stopped vectorising this loop.
+        # then needs no spans of its own. New arrays for them would cost more than they save: past
+        # eight arrays, LLVM stops vectorising this loop.
         n_c = np.int32(_mn(c1 - c0 + one, fw) if _mx(h_u, half) <= min_col_limit else np.float32(0.0))
         ta[c] = t_a
         tb[c] = n_c if large else ra * width + cb
@@ -440,9 +439,9 @@ def translate_kernel_2t(depth, valid, planes, row_sin, row_cos, col_sin, col_cos
     """:func:`translate_kernel` on two threads, with the same result bit for bit. The busy source
     rows are cut into :data:`_CHUNKS` chunks of about equal valid pixels, which the two threads take
     in turn from a shared counter (:func:`fetch_add`), each updating a key buffer of its own
-    (``bufs_a`` / ``bufs_b``: :func:`_translate_buffers` of each part): a static split at half the
-    pixels left one thread with 9.4 ms and the other 5.9 on the recorded session's map, whose
-    magnified footprints (the table under the origin) sit in the lower rows. Each chunk reprojects
+    (``bufs_a`` / ``bufs_b``: the translation's buffers of each part): a static split at half the
+    pixels leaves the threads unbalanced on a captured map, whose magnified footprints (the table
+    under the origin) sit in the lower rows. Each chunk reprojects
     its first row's upper neighbour again. Then the output pass split at half the map's rows, each
     half taking the minimum of both buffers' keys (the key carries the source index, so that is the
     one-thread result) and resetting both."""
@@ -489,7 +488,7 @@ def gardner_rows(row_sin, row_cos, col_sin, col_cos, ox, oy, oz, radius, planes,
     index of :func:`rgbd_envmap.geometry.equirect_pixel_index`, with :func:`atan2_branchless` for
     atan2, so that the per-row loop vectorises) and t as its distance where that pixel is valid.
     The pixel-centre directions come from float64 sin / cos of the rows and columns (contiguous, so
-    the loop vectorises; strided (H, W, 3) reads kept it scalar: 60-66 instead of 26-33 ms a map);
+    the loop vectorises; strided (H, W, 3) reads keep it scalar, about twice as slow);
     ``rows_buf`` / ``cols_buf``: (W,) int64."""
     height, width = valid.shape
     oo = ox * ox + oy * oy + oz * oz

@@ -195,7 +195,7 @@ def update(
     dev = check_array(device_position, "device_position", shape=(3,), dtype="float", finite=True).astype(np.float64)
     if config.splat and not 0.0 < float(focal_px) < math.inf:
         raise RangeError(f"focal_px: expected a positive finite focal length in pixels, got {focal_px}")
-    # Non-finite points or colours are skipped inside the kernel (a numpy pre-pass cost 1.5 ms).
+    # Non-finite points or colours are skipped inside the kernel (cheaper than a numpy pre-pass).
     if len(pts) > kernels.INDEX_MAX + 1:
         raise InvalidInputError(f"points_world: expected at most {kernels.INDEX_MAX + 1} points, got {len(pts)}")
     zband, tiles, rec, rec_key, listed = _update_scratch(em, len(pts))
