@@ -19,7 +19,7 @@ from rgbd_envmap.errors import (
     UnknownMethodError,
 )
 
-__all__ = ["check_array", "check_finite", "check_range", "check_method", "check_positive_int"]
+__all__ = ["check_array", "check_finite", "check_range", "check_method", "check_positive_int", "check_number", "check_flag"]
 
 Dim = int | str
 
@@ -122,3 +122,36 @@ def check_method(method: str, valid: Iterable[str], name: str = "method") -> str
     if method not in valid:
         raise UnknownMethodError(f"{name}: unknown method {method!r}; valid methods are {valid}")
     return method
+
+
+def check_number(value: object, name: str, *, low: float | None = None, high: float | None = None,
+                 low_open: bool = False, high_open: bool = False, integer: bool = False,
+                 optional: bool = False) -> float | int | None:
+    """Return ``value`` as a float (an int with ``integer``), raising :class:`DTypeError` unless it is
+    a real number (not a bool, not a string; None only with ``optional``) and :class:`RangeError`
+    unless it is finite and within [low, high] (``low_open`` / ``high_open``: the bound excluded).
+    The message names the argument, the expected range and the value given."""
+    if value is None and optional:
+        return None
+    kinds = (int, np.integer) if integer else (int, float, np.integer, np.floating)
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, kinds):
+        want = "an integer" if integer else "a number"
+        raise DTypeError(f"{name}: expected {want}{' or None' if optional else ''}, got {value!r}")
+    number = int(value) if integer else float(value)
+    lo = "" if low is None else f"{'>' if low_open else '≥'} {low}"
+    hi = "" if high is None else f"{'<' if high_open else '≤'} {high}"
+    expected = " and ".join(x for x in (lo, hi) if x) or "finite"
+    if not np.isfinite(number):
+        raise RangeError(f"{name}: expected a finite number ({expected}), got {value!r}")
+    if (low is not None and (number <= low if low_open else number < low)) or \
+            (high is not None and (number >= high if high_open else number > high)):
+        raise RangeError(f"{name}: expected a number {expected}, got {value!r}")
+    return number
+
+
+def check_flag(value: object, name: str) -> bool:
+    """Return ``value`` as a bool, raising :class:`DTypeError` unless it is one (a string such as
+    ``"false"`` is not)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise DTypeError(f"{name}: expected True or False, got {value!r}")
+    return bool(value)

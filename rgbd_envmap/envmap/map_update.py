@@ -34,13 +34,18 @@ import numpy as np
 
 from rgbd_envmap._kernels import envmap_update as kernels
 from rgbd_envmap._kernels.parallel import parallel_call
-from rgbd_envmap.checks import check_array, check_positive_int
+from rgbd_envmap.checks import check_array, check_flag, check_number, check_positive_int
 from rgbd_envmap.envmap.map import ChangeLog, EnvironmentMap
 from rgbd_envmap.envmap.tables import trig_tables
 from rgbd_envmap.errors import InvalidInputError, RangeError
 from rgbd_envmap.types import Intrinsics, RigidTransform
 
 __all__ = ["UpdateConfig", "SeenDepth", "UpdateStats", "update", "map_coordinates"]
+
+
+#: the largest ``UpdateConfig.max_splat_px``: a footprint of 2·256 + 1 rows already covers a quarter
+#: of a 2000×1000 map's height.
+MAX_SPLAT_PX = 256
 
 
 @dataclass(frozen=True)
@@ -84,6 +89,14 @@ class UpdateConfig:
     colour_average: int = 8
 
     def __post_init__(self) -> None:
+        check_number(self.trusted_radius_m, "UpdateConfig.trusted_radius_m", low=0.0)
+        check_number(self.removal_radius_m, "UpdateConfig.removal_radius_m", low=0.0)
+        check_flag(self.splat, "UpdateConfig.splat")
+        check_number(self.splat_scale, "UpdateConfig.splat_scale", low=0.0, low_open=True)
+        check_number(self.max_splat_px, "UpdateConfig.max_splat_px", low=1, high=MAX_SPLAT_PX, integer=True)
+        check_flag(self.carve, "UpdateConfig.carve")
+        check_number(self.carve_tol_rel, "UpdateConfig.carve_tol_rel", low=0.0)
+        check_number(self.carve_tol_abs_m, "UpdateConfig.carve_tol_abs_m", low=0.0)
         check_positive_int(self.colour_average, "UpdateConfig.colour_average")
         check_positive_int(self.carve_window, "UpdateConfig.carve_window")
         if self.carve_window % 2 == 0 or self.carve_window > 15:

@@ -93,6 +93,12 @@ class TangoIngestConfig:
         if not 0.0 <= self.confidence_threshold <= 1.0:
             raise InvalidInputError(f"confidence_threshold: expected a value in [0, 1], got {self.confidence_threshold}")
         check_method(self.registration, REGISTRATION_METHODS, "registration")
+        # Checked here, not at the first frame: an unknown name fails when the config is made.
+        from rgbd_envmap.depth import FILL_METHODS, RELIABILITY_METHODS  # the depth package imports nothing of ingest
+
+        check_method(self.reliability_method, RELIABILITY_METHODS, "TangoIngestConfig.reliability_method")
+        if self.fill_method is not None:
+            check_method(self.fill_method, FILL_METHODS, "TangoIngestConfig.fill_method")
         if self.denoise_half_window is not None and (isinstance(self.denoise_half_window, bool)
                                                      or not isinstance(self.denoise_half_window, int)
                                                      or self.denoise_half_window < 1):

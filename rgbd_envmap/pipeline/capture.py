@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from rgbd_envmap.checks import check_array, check_method, check_positive_int
+from rgbd_envmap.checks import check_array, check_flag, check_method, check_number, check_positive_int
 from rgbd_envmap.colour import (
     CCM_METHODS,
     DEFAULT_MAX_CONDITION,
@@ -44,16 +44,23 @@ from rgbd_envmap.colour import (
     estimate_ccm,
 )
 from rgbd_envmap.depth.reliability import discontinuity_passed
-from rgbd_envmap.errors import RangeError
+from rgbd_envmap.errors import DTypeError, RangeError
 from rgbd_envmap.envmap.map import EnvironmentMap
 from rgbd_envmap.envmap.pairs import frame_pair_sums, frame_pairs, frame_samples
 from rgbd_envmap.envmap.map_update import SeenDepth, UpdateConfig, UpdateStats, update
 from rgbd_envmap.timing import StageTimer
 from rgbd_envmap.types import RGBDFrame
 
-__all__ = ["CaptureConfig", "CaptureStep", "EnvironmentCapture", "FILLED_PIXEL_MODES"]
+__all__ = ["CaptureConfig", "CaptureStep", "EnvironmentCapture", "FILLED_PIXEL_MODES", "MAX_MAP_PIXELS",
+           "MAP_BYTES_PER_PIXEL"]
 
 FILLED_PIXEL_MODES = ("plane_consistent", "all", "none")
+#: bytes a map pixel takes while capturing: planar float32 radiance (12), float32 distance (4), the
+#: valid flag (1) and the colour-average count (1); the translated view and the SH tracker take as much
+#: again.
+MAP_BYTES_PER_PIXEL = 18
+#: the largest map a capture accepts (8192 × 4096: about 0.6 GiB for the map itself).
+MAX_MAP_PIXELS = 8192 * 4096
 
 
 class _NullTimer:
@@ -94,11 +101,23 @@ class CaptureConfig:
     freeze: bool = False
 
     def __post_init__(self) -> None:
+        check_positive_int(self.height, "CaptureConfig.height")
+        check_positive_int(self.width, "CaptureConfig.width")
+        pixels = self.height * self.width
+        if pixels > MAX_MAP_PIXELS:
+            raise RangeError(f"CaptureConfig.height × width: {self.height}×{self.width} would take about "
+                             f"{pixels * MAP_BYTES_PER_PIXEL / 2**30:.1f} GiB for the map alone; at most "
+                             f"{MAX_MAP_PIXELS:,} pixels (e.g. 8192×4096)")
+        check_number(self.pair_max_depth_diff_m, "CaptureConfig.pair_max_depth_diff_m", low=0.0)
+        check_flag(self.colour_correction, "CaptureConfig.colour_correction")
+        if not isinstance(self.update, UpdateConfig):
+            raise DTypeError(f"CaptureConfig.update: expected an UpdateConfig, got {type(self.update).__name__}")
+        check_number(self.edge_margin_px, "CaptureConfig.edge_margin_px", low=0, high=64, integer=True, optional=True)
+        check_flag(self.freeze, "CaptureConfig.freeze")
         check_method(self.filled_pixels, FILLED_PIXEL_MODES, "filled_pixels")
         check_method(self.ccm_method, CCM_METHODS, "ccm_method")
         # What estimate_ccm would reject per frame, rejected once here (the fused fit skips its checks).
-        if not float(self.max_mse) >= 0.0:
-            raise RangeError(f"CaptureConfig.max_mse: expected a number ≥ 0, got {self.max_mse}")
+        check_number(self.max_mse, "CaptureConfig.max_mse", low=0.0)
         check_positive_int(self.min_pairs, "CaptureConfig.min_pairs")
 
 
