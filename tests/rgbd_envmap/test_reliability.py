@@ -324,7 +324,7 @@ def test_monroy2018_is_not_scale_free():
 
 @pytest.mark.parametrize("distance_m", [0.5, 1.0, 4.0])
 def test_monroy2018_in_metres_keeps_even_a_30cm_step(distance_m):
-    # The measured behaviour of the authors' threshold with d in metres (docs/reliability.md).
+    # The measured behaviour of the authors' threshold with d in metres (docs/design/reliability.md).
     z = _noisy(_step(20, 20, distance_m, 0.30), 5)
     assert mark_reliable(_grey(z.shape), z, np.ones(z.shape, bool), "monroy2018").all()
 
