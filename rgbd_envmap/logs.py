@@ -297,11 +297,17 @@ class SessionLog:
         root: the session directory.
         calibration: the device calibration.
         depth_timestamps_ns, colour_timestamps_ns: (N,) int64, strictly increasing, read-only.
+        dropped_points: {depth file relative to root: points dropped as NaN or inf} for the packets
+            read so far (:meth:`read_depth`).
+        warnings: what :meth:`open` found suspicious but readable (an empty index).
     """
 
     def __init__(self, root: Path, calibration: Calibration, entries: dict[str, list[tuple[int, str, RigidTransform]]]):
         """Use :meth:`open`. ``entries[kind]``: (timestamp_ns, path relative to root, pose) per packet."""
         self.root, self.calibration, self._entries = root, calibration, entries
+        self.dropped_points: dict[str, int] = {}
+        self.warnings: list[str] = [f"{root / (kind + '.txt')}: empty index (no {kind} packets)"
+                                    for kind in KINDS if not entries[kind]]
         self.depth_timestamps_ns, self.colour_timestamps_ns = (
             np.array([e[0] for e in entries[k]], dtype=np.int64) for k in KINDS)
         for ts in (self.depth_timestamps_ns, self.colour_timestamps_ns):
@@ -347,10 +353,25 @@ class SessionLog:
         for kind, i, _ in self.entries():
             yield self.read_depth(i) if kind == "depth" else self.read_colour(i)
 
-    def read_depth(self, i: int) -> DepthPacket:
-        """The ``i``-th depth packet (points in metres, depth sensor frame)."""
+    def read_depth(self, i: int, *, strict: bool = False) -> DepthPacket:
+        """The ``i``-th depth packet (points in metres, depth sensor frame).
+
+        Points with a NaN or infinite coordinate or confidence are dropped, and their count kept in
+        :attr:`dropped_points` under the file's path relative to the log. A packet whose every point
+        is dropped raises :class:`LogFormatError` (a replay skips and counts it); with ``strict`` any
+        non-finite point does, naming the file and the count."""
         ns, rel, T = self._entries["depth"][i]
-        return _packet(self.root / rel, DepthPacket, ns, *_read_ply(self.root / rel), T)
+        path = self.root / rel
+        points, confidence = _read_ply(path)
+        finite = np.isfinite(points).all(axis=1) & np.isfinite(confidence)
+        n_bad = int(len(finite) - np.count_nonzero(finite))
+        if n_bad:
+            if strict or n_bad == len(finite):
+                raise LogFormatError(f"{path}: {n_bad} of {len(finite)} points hold NaN or inf"
+                                     + (" (every point)" if n_bad == len(finite) else ""))
+            self.dropped_points[str(rel)] = n_bad
+            points, confidence = points[finite], confidence[finite]
+        return _packet(path, DepthPacket, ns, points, confidence, T)
 
     def read_colour(self, i: int) -> ColourPacket:
         """The ``i``-th colour packet; its (H*3/2, W) uint8 NV21 buffer must match the calibration."""

@@ -391,3 +391,45 @@ def test_ground_truth_keys_that_clash_with_savez_arguments(tmp_path):
             w.write(depth_packet(rng, 2, 1), groundtruth={"o": np.array([object()])})
     got = SessionLog.open(tmp_path / "s").groundtruth("depth", 1)
     assert set(got) == set(arrays) and all(np.array_equal(got[k], arrays[k]) for k in arrays)
+
+
+def _rewrite_ply(path: Path, points: np.ndarray, confidence: np.ndarray) -> None:
+    from rgbd_envmap.logs import _ply_bytes  # the writer's own layout (test-only use of a private helper)
+
+    path.write_bytes(_ply_bytes(points.astype(np.float32), confidence.astype(np.float32)))
+
+
+def test_non_finite_points_are_dropped_and_counted_per_file(tmp_path):
+    root, packets = tmp_path / "s", []
+    rng = np.random.default_rng(7)
+    with SessionWriter(root, make_calibration()) as w:
+        for k in range(3):
+            p = depth_packet(rng, 1000 * (k + 1), 50)
+            w.write(p)
+            packets.append(p)
+    log = SessionLog.open(root)
+    rel = sorted((root / "depth").iterdir())
+    pts, conf = packets[1].points_m.copy(), packets[1].confidence.copy()
+    pts[3, 1], pts[10, 2], conf[20] = np.nan, np.inf, np.nan
+    _rewrite_ply(rel[1], pts, conf)
+    _rewrite_ply(rel[2], np.full((5, 3), np.nan), np.ones(5))
+    got = log.read_depth(1)
+    keep = np.ones(50, bool)
+    keep[[3, 10, 20]] = False
+    np.testing.assert_array_equal(got.points_m, packets[1].points_m[keep])
+    np.testing.assert_array_equal(got.confidence, packets[1].confidence[keep])
+    assert log.dropped_points == {str(rel[1].relative_to(root)): 3}
+    with pytest.raises(LogFormatError, match=r"depth/.*: 5 of 5 points hold NaN or inf \(every point\)"):
+        log.read_depth(2)  # an all-NaN packet: the replay skips and counts it
+    with pytest.raises(LogFormatError, match=r"3 of 50 points hold NaN or inf"):
+        log.read_depth(1, strict=True)
+    assert log.read_depth(0).points_m.shape == (50, 3)  # a clean packet is untouched
+
+
+def test_an_empty_index_is_a_warning(tmp_path):
+    root = tmp_path / "s"
+    rng = np.random.default_rng(8)
+    with SessionWriter(root, make_calibration()) as w:
+        w.write(colour_packet(rng, 10))
+    log = SessionLog.open(root)
+    assert len(log.warnings) == 1 and "depth.txt: empty index" in log.warnings[0]
