@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from apps.progress import bar_disable
 from apps.run import RunOptions, run_pipeline
 from apps.preview import colour_thumbnail, contact_sheet, depth_confidence_images, depth_to_colourmap, tonemap
 from rgbd_envmap.checks import check_method
@@ -139,7 +140,7 @@ def run_simulate(opts: SimulateOptions) -> dict:
                     extra={"source": "simulate", "scene": scene.name},
                 )
         else:
-            for _ in tqdm(recorded(writer), total=len(schedule), desc="simulate", unit="pkt", disable=not opts.progress):
+            for _ in tqdm(recorded(writer), total=len(schedule), desc="simulate", unit="pkt", disable=bar_disable(opts.progress)):
                 pass
             groundtruth_envmap()
     wall = time.perf_counter() - wall0
@@ -197,7 +198,7 @@ def _run_simulate_kinect(opts: SimulateOptions, scene, trajectory) -> dict:
 
     def frames():
         stream = iter(sim.run(opts.duration_s))
-        for _ in tqdm(range(n), desc="simulate kinect", unit="frame", disable=not opts.progress):
+        for _ in tqdm(range(n), desc="simulate kinect", unit="frame", disable=bar_disable(opts.progress)):
             t0 = time.perf_counter()
             f = next(stream)
             times.append(time.perf_counter() - t0)

@@ -200,6 +200,8 @@ def run_sweep(log: str | Path, out: str | Path, *, jobs: int | None = None, axes
     """Run the grid on ``log``; returns the path of sweep.md."""
     from tqdm import tqdm
 
+    from apps.progress import bar_disable
+
     from apps.replay import default_origin
     from rgbd_envmap.logs import SessionLog
 
@@ -211,7 +213,7 @@ def run_sweep(log: str | Path, out: str | Path, *, jobs: int | None = None, axes
     results: dict[str, dict] = {}
     with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn"), initializer=_one_thread) as pool:
         futures = {pool.submit(_run_point, str(log), str(out / "points" / _slug(p.name)), p, origin): p for p in points}
-        for fut in tqdm(as_completed(futures), total=len(futures), desc="sweep", unit="point", disable=not progress):
+        for fut in tqdm(as_completed(futures), total=len(futures), desc="sweep", unit="point", disable=bar_disable(progress)):
             results[futures[fut].name] = fut.result()
     rows = [results[p.name] for p in points]
     if "default" in results and "displaced origin (truth)" in results:
