@@ -31,8 +31,8 @@ import math
 
 import numpy as np
 
-from rgbd_envmap.checks import check_array
-from rgbd_envmap.errors import NonFiniteError, RangeError, ShapeError
+from rgbd_envmap.checks import check_array, check_number
+from rgbd_envmap.errors import NonFiniteError, ShapeError
 from rgbd_envmap.geometry import equirect_solid_angles
 
 __all__ = [
@@ -182,9 +182,7 @@ def ws_psnr(a: np.ndarray, b: np.ndarray, valid: np.ndarray | None = None, peak:
     h, w, c = a.shape
     if valid is not None:
         valid = _check_mask(valid, "valid", (h, w))
-    peak = float(peak)
-    if not (math.isfinite(peak) and peak > 0.0):
-        raise RangeError(f"peak: expected a finite value > 0, got {peak}")
+    peak = check_number(peak, "peak", low=0.0, low_open=True)
 
     num = den = 0.0
     with np.errstate(over="ignore", invalid="ignore"):

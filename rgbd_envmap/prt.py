@@ -511,6 +511,8 @@ def shade(transfer: np.ndarray, coeffs: np.ndarray, albedo, *, out: np.ndarray |
         out = np.empty((T.shape[0], 3), np.float32)
     else:
         check_array(out, "out", shape=(T.shape[0], 3), dtype=np.float32)
+        if not out.flags.writeable:
+            raise InvalidInputError("out: expected a writable array, got a read-only one")
     # A single-threaded kernel, not BLAS: a (V, 25) × (25, 3) product is too small for threads, and
     # on a busy machine BLAS's thread wake-ups cost many times the product (benchmarks/bench_prt.py
     # times both). The weights L_k · albedo / π are formed inside the compiled call too, not as numpy

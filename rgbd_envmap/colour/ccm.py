@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgbd_envmap._kernels import ccm as kernels
-from rgbd_envmap.checks import check_array, check_method, check_positive_int
+from rgbd_envmap.checks import check_array, check_method, check_number, check_positive_int
 from rgbd_envmap.errors import InvalidInputError, NonFiniteError, RangeError, ShapeError
 
 __all__ = [
@@ -250,8 +250,7 @@ def estimate_ccm(
         noise_std = float(noise_std)
         if not 0.0 <= noise_std < math.inf:
             raise RangeError(f"noise_std: expected a finite number ≥ 0 or None, got {noise_std}")
-    if not float(ridge) >= 0.0:
-        raise RangeError(f"ridge: expected a number ≥ 0, got {ridge}")
+    ridge = check_number(ridge, "ridge", low=0.0)
     a = _check_ccm_input(src_raw, "src")
     b = _check_ccm_input(dst_raw, "dst")
     return ccm_from_sums(*kernels.ccm_sums(a, b, sat), method, max_mse=max_mse, min_pairs=min_pairs,

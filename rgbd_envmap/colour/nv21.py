@@ -72,9 +72,10 @@ def srgb8_to_linear_lut() -> np.ndarray:
 def srgb_to_linear(rgb: np.ndarray) -> np.ndarray:
     """sRGB EOTF (IEC 61966-2-1): encoded values in [0, 1] → linear, float32 (float64 stays float64).
 
-    Values outside [0, 1] are clipped first; NaN stays NaN.
+    Values outside [0, 1] are clipped first; NaN stays NaN. Integer and bool input is taken as float32;
+    complex input and anything not numeric raise :class:`~rgbd_envmap.errors.DTypeError`.
     """
-    x = np.asarray(rgb)
+    x = check_array(rgb, "rgb", dtype=("float", "int", "bool"))
     x = np.clip(x.astype(np.float32) if x.dtype.kind != "f" else x, 0.0, 1.0)
     return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(x.dtype, copy=False)
 

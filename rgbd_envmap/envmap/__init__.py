@@ -11,7 +11,7 @@ Every public name is available from this package (``from rgbd_envmap import envm
 envmap.update(...)``).
 """
 
-from rgbd_envmap.envmap.map import ChangeLog, EnvironmentMap, MapChanges
+from rgbd_envmap.envmap.map import MAX_MAP_PIXELS, ChangeLog, EnvironmentMap, MapChanges, check_map
 from rgbd_envmap.envmap.pairs import collect_pairs, frame_pair_sums, frame_pairs, frame_points, frame_samples
 from rgbd_envmap.envmap.rules import is_backface, rule_closer, rule_empty, rule_freed, rule_removal, rule_trusted
 from rgbd_envmap.envmap.translation import TRANSLATE_METHODS, translate
@@ -19,6 +19,8 @@ from rgbd_envmap.envmap.map_update import SeenDepth, UpdateConfig, UpdateStats, 
 
 __all__ = [
     "EnvironmentMap",
+    "check_map",
+    "MAX_MAP_PIXELS",
     "MapChanges",
     "ChangeLog",
     "SeenDepth",

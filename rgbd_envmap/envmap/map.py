@@ -15,8 +15,36 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgbd_envmap.checks import check_array, check_positive_int
+from rgbd_envmap.errors import DTypeError, InvalidInputError, NonFiniteError, RangeError
 
-__all__ = ["EnvironmentMap", "MapChanges", "ChangeLog"]
+__all__ = ["EnvironmentMap", "MapChanges", "ChangeLog", "check_map", "MAX_MAP_PIXELS", "MAP_BYTES_PER_PIXEL"]
+
+#: bytes a map pixel takes: planar float32 radiance (12), float32 distance (4), the valid flag (1);
+#: capturing adds the colour-average count (1) and per-update scratch, a translated view as much again.
+MAP_BYTES_PER_PIXEL = 17
+#: the largest map the library makes (8192 × 4096: about 0.5 GiB).
+MAX_MAP_PIXELS = 8192 * 4096
+
+
+def check_map(em: object, name: str = "em", *, writable: bool = False) -> "EnvironmentMap":
+    """Raise the project's typed errors unless ``em`` is an :class:`EnvironmentMap` whose arrays have
+    the layout the stages read (C-contiguous float32 (3, H, W) radiance, float32 (H, W) distance,
+    bool (H, W) valid, finite (3,) origin) and, with ``writable``, can be written. Returns ``em``."""
+    if not isinstance(em, EnvironmentMap):
+        raise DTypeError(f"{name}: expected an EnvironmentMap, got {type(em).__name__}")
+    shapes = {"radiance_planes": ((3, em.height, em.width), np.float32), "depth_m": ((em.height, em.width), np.float32),
+              "valid": ((em.height, em.width), np.bool_)}
+    for attr, (shape, dtype) in shapes.items():
+        a = getattr(em, attr)
+        if not isinstance(a, np.ndarray) or a.shape != shape or a.dtype != dtype:
+            got = f"{a.dtype} {a.shape}" if isinstance(a, np.ndarray) else type(a).__name__
+            raise InvalidInputError(f"{name}.{attr}: expected a {np.dtype(dtype)} array of shape {shape}, got {got}")
+        if not a.flags.c_contiguous:
+            raise InvalidInputError(f"{name}.{attr}: expected a C-contiguous array (the map's own storage)")
+        if writable and not a.flags.writeable:
+            raise InvalidInputError(f"{name}.{attr}: expected a writable array, got a read-only one")
+    check_array(em.origin, f"{name}.origin", shape=(3,), dtype="float", finite=True)
+    return em
 
 
 class EnvironmentMap:
@@ -33,6 +61,10 @@ class EnvironmentMap:
     def __init__(self, height: int = 1000, width: int = 2000, origin: np.ndarray = (0.0, 0.0, 0.0)) -> None:
         self.height = check_positive_int(height, "height")
         self.width = check_positive_int(width, "width")
+        if self.height * self.width > MAX_MAP_PIXELS:
+            raise RangeError(f"height × width: a {self.height}×{self.width} map would take about "
+                             f"{self.height * self.width * MAP_BYTES_PER_PIXEL / 2**30:.1f} GiB; at most "
+                             f"{MAX_MAP_PIXELS:,} pixels (e.g. 8192×4096)")
         self.origin = check_array(origin, "origin", shape=(3,), dtype=("float", "int"), finite=True).astype(np.float64)
         self.radiance_planes = np.zeros((3, self.height, self.width), np.float32)
         self.depth_m = np.zeros((self.height, self.width), np.float32)
@@ -81,6 +113,14 @@ class EnvironmentMap:
         h, w = rad.shape[:2]
         depth = check_array(depth_m, "depth_m", shape=(h, w), dtype="float")
         ok = check_array(valid, "valid", shape=(h, w), dtype="bool")
+        # Where a pixel is valid its data must mean something; elsewhere anything goes (it is ignored).
+        bad = ok & ~np.isfinite(rad).all(axis=-1)
+        if bad.any():
+            raise NonFiniteError(f"radiance: expected finite values where valid, got {int(bad.sum())} pixels with NaN or inf")
+        bad = ok & ~(np.isfinite(depth) & (depth > 0))
+        if bad.any():
+            raise RangeError(f"depth_m: expected a finite distance > 0 where valid, got {int(bad.sum())} pixels that are "
+                             "not (NaN, inf, zero or negative)")
         em = cls(h, w, origin)
         em.radiance_planes[:] = np.moveaxis(rad, -1, 0)
         em.depth_m[:] = depth
@@ -126,7 +166,12 @@ class EnvironmentMap:
         self._averaged = None
 
     def copy(self) -> "EnvironmentMap":
-        return EnvironmentMap.from_arrays(self.radiance, self.depth_m, self.valid, self.origin)
+        """An independent map with the same content (no change log, colour counts restarted)."""
+        em = EnvironmentMap(self.height, self.width, self.origin)
+        em.radiance_planes[:] = self.radiance_planes
+        em.depth_m[:] = self.depth_m
+        em.valid[:] = self.valid
+        return em
 
     def __repr__(self) -> str:
         return f"EnvironmentMap({self.height}×{self.width}, origin={self.origin.tolist()}, valid={self.valid.mean():.3f})"

@@ -35,9 +35,9 @@ import numpy as np
 from rgbd_envmap._kernels import envmap_update as kernels
 from rgbd_envmap._kernels.parallel import parallel_call
 from rgbd_envmap.checks import check_array, check_flag, check_number, check_positive_int
-from rgbd_envmap.envmap.map import ChangeLog, EnvironmentMap
+from rgbd_envmap.envmap.map import ChangeLog, EnvironmentMap, check_map
 from rgbd_envmap.envmap.tables import trig_tables
-from rgbd_envmap.errors import InvalidInputError, RangeError
+from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError
 from rgbd_envmap.types import Intrinsics, RigidTransform
 
 __all__ = ["UpdateConfig", "SeenDepth", "UpdateStats", "update", "map_coordinates"]
@@ -202,7 +202,13 @@ def update(
         RangeError: ``focal_px`` not positive and finite while splatting.
         InvalidInputError: more than 2³⁰ points.
     """
+    check_map(em, writable=True)
+    if not isinstance(config, UpdateConfig):
+        raise DTypeError(f"config: expected an UpdateConfig, got {type(config).__name__}")
+    if seen is not None and not isinstance(seen, SeenDepth):
+        raise DTypeError(f"seen: expected a SeenDepth or None, got {type(seen).__name__}")
     check_positive_int(threads, "threads")
+    focal_px = check_number(focal_px, "focal_px")
     pts = check_array(points_world, "points_world", shape=("N", 3), dtype="float").astype(np.float64, copy=False)
     col = check_array(colours, "colours", shape=(pts.shape[0], 3), dtype="float").astype(np.float32, copy=False)
     dev = check_array(device_position, "device_position", shape=(3,), dtype="float", finite=True).astype(np.float64)

@@ -18,18 +18,35 @@ import numpy as np
 
 from rgbd_envmap._kernels import envmap_pairs as kernels
 from rgbd_envmap._kernels.parallel import parallel_call
-from rgbd_envmap.checks import check_array, check_positive_int
-from rgbd_envmap.envmap.map import EnvironmentMap
-from rgbd_envmap.errors import InvalidInputError
+from rgbd_envmap.checks import check_array, check_number, check_positive_int
+from rgbd_envmap.envmap.map import EnvironmentMap, check_map
+from rgbd_envmap.errors import DTypeError, InvalidInputError
 from rgbd_envmap.geometry import pixel_rays
 from rgbd_envmap.types import Intrinsics, RigidTransform
 
 __all__ = ["collect_pairs", "frame_points", "frame_pairs", "frame_pair_sums", "frame_samples"]
 
 
+def _check_camera(intrinsics: object, T_world_from_cam: object) -> None:
+    """The frame's camera: Intrinsics and a RigidTransform into the world frame."""
+    if not isinstance(intrinsics, Intrinsics):
+        raise DTypeError(f"intrinsics: expected an Intrinsics, got {type(intrinsics).__name__}")
+    if not isinstance(T_world_from_cam, RigidTransform):
+        raise DTypeError(f"T_world_from_cam: expected a RigidTransform, got {type(T_world_from_cam).__name__}")
+    if T_world_from_cam.dst not in ("", "world"):  # unnamed transforms are taken as they come
+        raise InvalidInputError(f"T_world_from_cam: expected a transform into 'world', got "
+                                f"T_{T_world_from_cam.dst}_from_{T_world_from_cam.src}")
+
+
+def _check_max_diff(value: object) -> float:
+    return float(check_number(value, "max_depth_diff_m", low=0.0))
+
+
 def _frame_pair_inputs(em: EnvironmentMap, depth_m: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics,
                        T_world_from_cam: RigidTransform, rgb: np.ndarray) -> tuple:
     """The checked arguments of the frame pair kernels up to the map's arrays."""
+    check_map(em)
+    _check_camera(intrinsics, T_world_from_cam)
     shape = intrinsics.shape
     depth = check_array(depth_m, "depth_m", shape=shape, dtype="float")
     ok = check_array(mask, "mask", shape=shape, dtype="bool")
@@ -46,7 +63,7 @@ def frame_pairs(em: EnvironmentMap, depth_m: np.ndarray, mask: np.ndarray, intri
     """``collect_pairs(em, frame_points(depth_m, mask, …), rgb[mask], max_depth_diff_m)`` in one pass
     over the frame (identical pairs, without the boolean gathers)."""
     args = _frame_pair_inputs(em, depth_m, mask, intrinsics, T_world_from_cam, rgb)
-    return kernels.frame_pairs_kernel(*args, float(max_depth_diff_m))
+    return kernels.frame_pairs_kernel(*args, _check_max_diff(max_depth_diff_m))
 
 
 def frame_pair_sums(em: EnvironmentMap, depth_m: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics,
@@ -59,7 +76,8 @@ def frame_pair_sums(em: EnvironmentMap, depth_m: np.ndarray, mask: np.ndarray, i
     check_positive_int(threads, "threads")
     args = _frame_pair_inputs(em, depth_m, mask, intrinsics, T_world_from_cam, rgb)
     sums, counts = np.zeros(16), np.zeros(3, np.int64)
-    k = parallel_call(kernels.frame_pair_sums_kernel, *args, float(max_depth_diff_m), sums, counts, float(saturation),
+    saturation = check_number(saturation, "saturation", low=0.0, low_open=True)
+    k = parallel_call(kernels.frame_pair_sums_kernel, *args, _check_max_diff(max_depth_diff_m), sums, counts, saturation,
                       threads=threads)
     ata = sums[[0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(3, 3)
     return ata, sums[6:15].reshape(3, 3).copy(), float(sums[15]), int(counts[0]), int(counts[1]), int(counts[2]), int(k)
@@ -72,17 +90,20 @@ def collect_pairs(
     current-space colours, the EM pixel each falls in; a pair is kept where the EM has data whose
     depth differs by at most ``max_depth_diff_m``. Returns (src (M, 3) float32 frame colours, dst
     (M, 3) float32 EM colours in the reference space), in the order of the points."""
+    check_map(em)
+    max_diff = _check_max_diff(max_depth_diff_m)
     pts = check_array(points_world, "points_world", shape=("N", 3), dtype="float").astype(np.float64, copy=False)
     col = check_array(colours, "colours", shape=(pts.shape[0], 3), dtype="float")
     n = len(pts)
     src, dst = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
     k = kernels.pairs_kernel(np.ascontiguousarray(pts), np.ascontiguousarray(col), em.origin, em.height, em.width, em.depth_m,
-                      em.valid, em.radiance_planes, float(max_depth_diff_m), src, dst)
+                      em.valid, em.radiance_planes, max_diff, src, dst)
     return src[:k], dst[:k]
 
 
 def frame_points(depth_m: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics, T_world_from_cam: RigidTransform) -> np.ndarray:
     """(M, 3) float64 world points of the ``mask`` pixels of a z-depth image, in raster order."""
+    _check_camera(intrinsics, T_world_from_cam)
     check_array(depth_m, "depth_m", shape=intrinsics.shape, dtype="float")
     check_array(mask, "mask", shape=intrinsics.shape, dtype="bool")
     return kernels.world_points(np.ascontiguousarray(depth_m), np.ascontiguousarray(mask), pixel_rays(intrinsics),
@@ -103,6 +124,7 @@ def frame_samples(depth_m: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics,
         depth_m: (H, W) float z-depth in metres; mask: (H, W) bool; rgb: (H, W, 3) float linear RGB;
         flag: (H, W) bool or uint8 (non-zero is True), or None; matrix: (3, 3) finite, or None.
     """
+    _check_camera(intrinsics, T_world_from_cam)
     shape = intrinsics.shape
     depth = check_array(depth_m, "depth_m", shape=shape, dtype="float")
     ok = check_array(mask, "mask", shape=shape, dtype="bool")

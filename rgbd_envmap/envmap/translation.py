@@ -23,8 +23,9 @@ import numpy as np
 
 from rgbd_envmap._kernels import translate as kernels
 from rgbd_envmap._kernels.parallel import parallel_call, usable_threads
-from rgbd_envmap.checks import check_array, check_method, check_positive_int
-from rgbd_envmap.envmap.map import EnvironmentMap
+from rgbd_envmap.checks import check_array, check_method, check_number, check_positive_int
+from rgbd_envmap.envmap.map import EnvironmentMap, check_map
+from rgbd_envmap.envmap.map_update import MAX_SPLAT_PX
 from rgbd_envmap.envmap.tables import col_limits, trig_columns
 from rgbd_envmap.errors import InvalidInputError
 
@@ -76,8 +77,7 @@ def _translate_buffers(height: int, width: int, part: int = 0) -> tuple[np.ndarr
 def _check_out(em: EnvironmentMap, out: EnvironmentMap) -> None:
     """``out`` must be another map of ``em``'s size whose arrays share no memory with ``em``'s (the
     kernel reads ``em`` while it writes ``out``)."""
-    if not isinstance(out, EnvironmentMap):
-        raise InvalidInputError(f"out: expected an EnvironmentMap, got {type(out).__name__}")
+    check_map(out, "out", writable=True)
     if (out.height, out.width) != (em.height, em.width):
         raise InvalidInputError(f"out: expected a {em.height}×{em.width} map, got {out.height}×{out.width}")
     mine = (em.radiance_planes, em.depth_m, em.valid)
@@ -110,8 +110,12 @@ def translate(em: EnvironmentMap, offset: np.ndarray, method: str = "depth", *, 
     scratch for the last map size between calls (an (H·W + 8,) int64 key buffer, 16 MB at
     2000×1000; two of them on two threads).
     """
+    check_map(em)
     check_method(method, TRANSLATE_METHODS)
     check_positive_int(threads, "threads")
+    check_number(max_splat_px, "max_splat_px", low=1, high=MAX_SPLAT_PX, integer=True)
+    check_number(max_rel_jump, "max_rel_jump", low=0.0)
+    check_number(radius_m, "radius_m")
     off = check_array(offset, "offset", shape=(3,), dtype=("float", "int"), finite=True).astype(np.float64)
     new_origin = em.origin + off
     if out is not None:

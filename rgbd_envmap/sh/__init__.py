@@ -16,7 +16,7 @@ parts compute: :mod:`rgbd_envmap.reference.sh_fill` and :mod:`rgbd_envmap.refere
 """
 
 from rgbd_envmap.sh.bands import BandSelection, TransferGram, select_bands, transfer_gram
-from rgbd_envmap.sh.basis import basis, irradiance, lambertian_band_factors, legendre, n_bands
+from rgbd_envmap.sh.basis import MAX_BANDS, basis, check_bands, irradiance, lambertian_band_factors, legendre, n_bands
 from rgbd_envmap.sh.incremental import IncrementalProjection
 from rgbd_envmap.sh.projection import (
     FILL_RADIUS_PX,
@@ -34,6 +34,8 @@ __all__ = [
     "IncrementalProjection",
     "TransferGram",
     "basis",
+    "check_bands",
+    "MAX_BANDS",
     "fill_missing",
     "fill_plan",
     "irradiance",

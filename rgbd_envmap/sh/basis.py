@@ -54,9 +54,22 @@ import math
 import numpy as np
 
 from rgbd_envmap.checks import check_array, check_positive_int
-from rgbd_envmap.errors import ShapeError
+from rgbd_envmap.errors import RangeError, ShapeError
 
-__all__ = ["basis", "irradiance", "lambertian_band_factors", "legendre", "n_bands"]
+__all__ = ["basis", "irradiance", "lambertian_band_factors", "legendre", "n_bands", "check_bands", "MAX_BANDS"]
+
+#: the most bands :func:`basis` evaluates (1,024 functions per direction; the pipeline uses 5, and
+#: 8 already resolve irradiance within 0.4 %).
+MAX_BANDS = 32
+
+
+def check_bands(bands: object, name: str = "bands") -> int:
+    """``bands`` as an int from 1 to :data:`MAX_BANDS`, else the project's typed error naming it."""
+    n = check_positive_int(bands, name)
+    if n > MAX_BANDS:
+        raise RangeError(f"{name}: expected at most {MAX_BANDS} bands (n bands are n² coefficients per colour "
+                         f"channel and per direction or vertex), got {n}")
+    return n
 
 
 def legendre(z: np.ndarray, bands: int) -> np.ndarray:
@@ -76,7 +89,7 @@ def legendre(z: np.ndarray, bands: int) -> np.ndarray:
     Q_lm = a_lm (z Q_{l−1,m} − b_lm Q_{l−2,m}), a = √((4l² − 1)/(l² − m²)),
     b = √(((l − 1)² − m²)/(4(l − 1)² − 1)).
     """
-    bands = check_positive_int(bands, "bands")
+    bands = check_bands(bands)
     out = np.empty(z.shape + (bands * bands,), dtype=np.float64)
     q_mm = np.full(z.shape, 1.0 / math.sqrt(4.0 * math.pi))
     for m in range(bands):
@@ -126,7 +139,7 @@ def basis(dirs: np.ndarray, bands: int = 5) -> np.ndarray:
         >>> basis(np.array([0.0, 0.0, 1.0]), bands=2).round(6)
         array([ 0.282095, -0.      ,  0.488603, -0.      ])
     """
-    bands = check_positive_int(bands, "bands")
+    bands = check_bands(bands)
     d = check_array(dirs, "dirs", shape=("*", 3), dtype=("float", "int")).astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         norm = np.sqrt(np.einsum("...i,...i->...", d, d))
@@ -154,7 +167,7 @@ def lambertian_band_factors(bands: int) -> np.ndarray:
     """(bands,) float64 clamped-cosine factors Â_l = (π, 2π/3, π/4, 0, −π/24, 0, π/64, …)
     (Ramamoorthi & Hanrahan 2001, eq. 8): Â_l = 2π (−1)^(l/2 − 1) / ((l + 2)(l − 1)) · C(l, l/2) / 2^l
     for even l ≥ 2, 0 for odd l > 1."""
-    bands = check_positive_int(bands, "bands")
+    bands = check_bands(bands)
     a = np.zeros(bands)
     a[0] = math.pi
     if bands > 1:

@@ -20,6 +20,7 @@ import numpy as np
 from rgbd_envmap._kernels import sh_incremental as kernels
 from rgbd_envmap.checks import check_positive_int
 from rgbd_envmap.errors import RangeError
+from rgbd_envmap.sh.basis import check_bands
 from rgbd_envmap.sh.projection import (
     FILL_RADIUS_PX,
     check_map_size,
@@ -80,7 +81,7 @@ class IncrementalProjection:
     """
 
     def __init__(self, bands: int = 5, *, fill_radius_px: int = FILL_RADIUS_PX) -> None:
-        self.bands = check_positive_int(bands, "bands")
+        self.bands = check_bands(bands)
         self.fill_radius_px = check_positive_int(fill_radius_px, "fill_radius_px")
         self.full_projections = 0
         self.incremental_updates = 0

@@ -43,7 +43,7 @@ from rgbd_envmap._kernels import sh_fill, sh_projection
 from rgbd_envmap.checks import check_array, check_finite, check_positive_int
 from rgbd_envmap.errors import NonFiniteError, ShapeError
 from rgbd_envmap.geometry import equirect_solid_angles
-from rgbd_envmap.sh.basis import legendre
+from rgbd_envmap.sh.basis import check_bands, legendre
 
 __all__ = [
     "FILL_RADIUS_PX",
@@ -253,7 +253,7 @@ def project_equirect(radiance: np.ndarray, valid: np.ndarray | None = None, band
         ``fill_radius_px``. NonFiniteError: NaN or infinity at a contributing pixel (or a sum that
         overflows).
     """
-    bands = check_positive_int(bands, "bands")
+    bands = check_bands(bands)
     radius_px = check_positive_int(fill_radius_px, "fill_radius_px")
     rad = check_array(radiance, "radiance", shape=("H", "W", 3), dtype=("float", "int"))
     H, W = rad.shape[:2]
@@ -277,7 +277,7 @@ def project_planar(planes: np.ndarray, valid: np.ndarray | None = None, bands: i
     Returns:
         (n², 3) float64 coefficients, identical to ``project_equirect(planes.transpose(1, 2, 0), ...)``.
     """
-    bands = check_positive_int(bands, "bands")
+    bands = check_bands(bands)
     radius_px = check_positive_int(fill_radius_px, "fill_radius_px")
     p = check_array(planes, "planes", shape=(3, "H", "W"), dtype=("float", "int"))
     H, W = p.shape[1:]

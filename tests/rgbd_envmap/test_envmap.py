@@ -838,12 +838,17 @@ def test_translate_out_gives_the_same_map_in_place():
 
 
 def test_translate_out_errors():
-
     em = EnvironmentMap(H, W)
     off = np.array([0.1, 0.0, 0.0])
-    for bad in (EnvironmentMap(H, W + 2), EnvironmentMap(H + 1, W), em, np.zeros((3, H, W), np.float32)):
+    for bad in (EnvironmentMap(H, W + 2), EnvironmentMap(H + 1, W), em):
         with pytest.raises(InvalidInputError, match="out"):
             translate(em, off, out=bad)
+    with pytest.raises(DTypeError, match="out: expected an EnvironmentMap"):
+        translate(em, off, out=np.zeros((3, H, W), np.float32))
+    read_only = EnvironmentMap(H, W)
+    read_only.radiance_planes.setflags(write=False)
+    with pytest.raises(InvalidInputError, match="out.radiance_planes: expected a writable array"):
+        translate(em, off, out=read_only)
     shares = EnvironmentMap(H, W)
     shares.depth_m = em.depth_m  # the kernel would read what it writes
     with pytest.raises(InvalidInputError, match="out"):
