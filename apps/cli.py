@@ -61,6 +61,9 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
                    help="override one setting, e.g. --set capture.ccm_method=least_squares --set shading.bands=3 (repeatable)")
     g.add_argument("--em-size", type=_em_size, default=None, metavar="WxH", help="environment map size, e.g. 1000x500")
     g.add_argument("--no-render", action="store_true", help="capture only: no virtual object, no composites")
+    from apps.export import add_envmap_args
+
+    add_envmap_args(g)
     o = p.add_argument_group("outputs")
     o.add_argument("--composite-every", type=int, default=30, metavar="N", help="save every N-th composited frame as PNG")
     o.add_argument("--no-video", action="store_true", help="do not write composites.mp4")
@@ -80,7 +83,9 @@ def _pipeline_config(args: argparse.Namespace):
         extra += [f"capture.width={args.em_size[0]}", f"capture.height={args.em_size[1]}"]
     if args.no_render:
         extra.append("render.enabled=false")
-    return apply_overrides(cfg, extra + list(args.overrides))
+    from apps.export import envmap_config
+
+    return envmap_config(apply_overrides(cfg, extra + list(args.overrides)), args)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -95,7 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="simulate a capture session and run the pipeline on it live",
         description="Simulate a Tango-like device (ToF depth at 5 Hz, colour at 30 Hz with auto-exposure and "
         "white balance) moving through a scene, and run the capture-and-relight pipeline on its packets as "
-        "they arrive. Writes into OUT: envmap.npz / envmap.png / envmap_depth.png, composites/ and "
+        "they arrive. Writes into OUT: envmap.npz / envmap.hdr / envmap.exr / envmap.png / envmap_depth.png, composites/ and "
         "composites.mp4, timing.csv / timing.md / timing.png, accuracy.json, depth_frames.csv, config.yaml, "
         "run.json; session/ (the log, with ground truth under groundtruth/), preview/ and simulation.json.",
     )
@@ -105,7 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--trajectory", default=None, metavar="NAME",
                      help="packaged trajectory name (orbit, orbit_inward, sweep, ...) or a YAML path (default: the scene's)")
     sim.add_argument("--seed", type=int, default=0, metavar="N", help="random seed; equal seeds give identical sessions")
-    sim.add_argument("--colour-size", type=_size, default=(960, 540), metavar="WxH", help="colour camera resolution in pixels")
+    sim.add_argument("--colour-size", type=_size, default=None, metavar="WxH",
+                     help="colour camera resolution in pixels (default 960x540; 960x720 for --device phone)")
     sim.add_argument("--tracking-noise-m", type=float, default=0.0, metavar="METRES", help="σ of reported-position noise per packet")
     sim.add_argument("--tracking-noise-deg", type=float, default=0.0, metavar="DEGREES", help="σ of reported-rotation noise per packet")
     sim.add_argument("--no-auto-exposure", action="store_true", help="hold the exposure gain at 1")
@@ -115,23 +121,46 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--overwrite", action="store_true", help="replace an existing session in OUT")
     sim.add_argument("--quiet", action="store_true", help="no progress bar")
     sim.add_argument("--record-only", action="store_true", help="record the session without running the pipeline")
-    sim.add_argument("--device", choices=("tango", "kinect"), default="tango",
+    sim.add_argument("--device", choices=("tango", "kinect", "phone"), default="tango",
                      help="tango: ToF point clouds (5 Hz) + NV21 colour (30 Hz), run live; kinect: registered 640×480 depth + "
-                     "colour (30 Hz), recorded as a TUM RGB-D sequence in OUT/session and replayed through the Kinect path")
+                     "colour (30 Hz), recorded as a TUM RGB-D sequence in OUT/session and replayed through the Kinect path; "
+                     "phone: a LiDAR phone (256×192 depth registered to 4:3 colour), recorded in the Stray Scanner layout "
+                     "in OUT/session and replayed through the mobile path")
     _add_pipeline_args(sim)
 
     rep = sub.add_parser(
-        "replay", formatter_class=fmt, help="run the pipeline on a recorded session log",
-        description="Replay a session log (as written by simulate) through the pipeline, with any settings. "
-        "Writes the same run folder as simulate (without session/ and preview/). Unreadable packets are "
-        "skipped and counted in run.json, or end the run with --strict.",
+        "replay", formatter_class=fmt, help="run the pipeline on a recorded session log or RGB-D sequence",
+        description="Replay a recording through the pipeline, with any settings: a session log (as written by "
+        "simulate), a TUM RGB-D sequence (as the benchmark ships it: rgb.txt, depth.txt, groundtruth.txt, rgb/, "
+        "depth/) or an ICL-NUIM sequence in its TUM-compatible layout (associations.txt, *.gt.freiburg, rgb/, "
+        "depth/); the layout is recognised by its files. Writes the same run folder as simulate (without "
+        "session/ and preview/). Unreadable packets are skipped and counted in run.json, or end the run with --strict.",
     )
-    rep.add_argument("log", type=Path, metavar="LOG", help="session directory (the one holding calibration.json)")
+    rep.add_argument("log", type=Path, metavar="LOG",
+                     help="the recording's folder: session log, TUM RGB-D or ICL-NUIM sequence")
     rep.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     rep.add_argument("--origin", type=_xyz, nargs=3, default=None, metavar=("X", "Y", "Z"),
                      help="EM origin in world metres (default: the log's true-map origin, else 1 m in front of the first camera)")
     rep.add_argument("--strict", action="store_true", help="stop at the first unreadable packet instead of skipping it")
     rep.add_argument("--quiet", action="store_true", help="no progress bar")
+    seq = rep.add_argument_group(
+        "RGB-D sequences (TUM RGB-D, ICL-NUIM)",
+        "Camera, depth and poses of a sequence; run.json records which intrinsics were used and why.")
+    seq.add_argument("--intrinsics", default=None, metavar="fr1|fr2|fr3|default|icl-nuim|FILE",
+                     help="the camera: a preset (the TUM benchmark's freiburg1/2/3 calibrations with their distortion, "
+                     "the ROS default fx = fy = 525, ICL-NUIM's fx = 481.2, fy = -480) or a JSON file of Intrinsics "
+                     "(width, height, fx, fy, cx, cy, distortion {k1, k2, p1, p2, k3}). Default: calibration.json if the "
+                     "folder has one, else the camera its name names (rgbd_dataset_freiburg1_* → fr1), else default; "
+                     "ICL-NUIM: icl-nuim")
+    seq.add_argument("--depth-scale", type=float, default=None, metavar="UNITS_PER_M",
+                     help="depth PNG units per metre (default 5000, both benchmarks')")
+    seq.add_argument("--tum-depth-correction", action="store_const", const="auto", default=None,
+                     help="multiply the depth by the TUM benchmark's correction factor of the freiburg camera in use "
+                     "(fr1 1.035, fr2 1.031, fr3 1.0; from --intrinsics or the folder name). The published depth "
+                     "images already carry it: this is for recordings that do not")
+    seq.add_argument("--poses", type=Path, default=None, metavar="FILE",
+                     help="a trajectory in TUM format (timestamp tx ty tz qx qy qz qw, e.g. an estimated one) instead of "
+                     "groundtruth.txt / the *.gt.freiburg file")
     _add_pipeline_args(rep)
 
     rpt = sub.add_parser("report", formatter_class=fmt, help="regenerate the reports of a run folder",
@@ -151,6 +180,9 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--axes", nargs="+", default=None, metavar="AXIS",
                     help="which axes to sweep (default all): em_size bands hole_filling ccm translation")
     sw.add_argument("--quiet", action="store_true", help="no progress bar")
+    from apps.export import add_export_parser
+
+    add_export_parser(sub, fmt)
     return parser
 
 
@@ -166,11 +198,12 @@ def main(argv: list[str] | None = None) -> int:
     install_from_env()  # a first run's warm-up beside this process: compile each kernel once (scripts/main.sh)
     try:
         if args.command == "simulate":
+            colour_size = args.colour_size or ((960, 720) if args.device == "phone" else (960, 540))
             from apps.simulate import SimulateOptions, run_simulate
 
             summary = run_simulate(SimulateOptions(
                 duration_s=args.duration, out=args.out, scene=args.scene, trajectory=args.trajectory, seed=args.seed,
-                colour_width=args.colour_size[0], colour_height=args.colour_size[1],
+                colour_width=colour_size[0], colour_height=colour_size[1],
                 tracking_noise_m=args.tracking_noise_m, tracking_noise_deg=args.tracking_noise_deg,
                 auto_exposure=not args.no_auto_exposure, auto_white_balance=not args.no_auto_white_balance,
                 preview_envmap_height=args.preview_envmap_height, overwrite=args.overwrite, progress=not args.quiet,
@@ -190,7 +223,8 @@ def main(argv: list[str] | None = None) -> int:
             summary = run_replay(ReplayOptions(
                 log=args.log, out=args.out, origin=tuple(args.origin) if args.origin else None, config=_pipeline_config(args),
                 composite_every=args.composite_every, video=not args.no_video, progress=not args.quiet, strict=args.strict,
-                rerun=args.rerun, cache_dir=args.cache_dir,
+                rerun=args.rerun, cache_dir=args.cache_dir, intrinsics=args.intrinsics, depth_scale=args.depth_scale,
+                poses=args.poses, tum_depth_correction=args.tum_depth_correction,
             ))
             skipped = summary.get("skipped") or {}
             print(f"replayed {summary['depth_packets']} depth and {summary['colour_packets']} colour packets"
@@ -200,6 +234,10 @@ def main(argv: list[str] | None = None) -> int:
 
             write_reports(args.run)
             print(f"wrote {args.run / 'timing.csv'}, {args.run / 'timing.md'}, {args.run / 'timing.png'}")
+        elif args.command == "export":
+            from apps.export import run_export
+
+            return run_export(args)
         elif args.command == "sweep":
             from apps.sweep import run_sweep
 

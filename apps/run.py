@@ -3,8 +3,10 @@
 A run folder holds:
 
 - ``envmap.npz`` (arrays ``radiance`` (H, W, 3) float32 linear, ``depth_m`` (H, W) float32 distance
-  from the origin, ``valid`` (H, W) bool, ``origin`` (3,) float64), ``envmap.png`` (tone-mapped colour)
-  and ``envmap_depth.png``;
+  from the origin, ``valid`` (H, W) bool, ``origin`` (3,) float64), the same map as ``envmap.hdr``
+  (Radiance RGBE, linear; invalid pixels 0) and ``envmap.exr`` (OpenEXR: float32 R, G, B, ``valid``,
+  ``depth``), both in our orientation (:mod:`rgbd_envmap.envmap_io`; ``rgbd-envmap export`` writes
+  other tools' orientations), ``envmap.png`` (tone-mapped colour) and ``envmap_depth.png``;
 - ``composites/`` (every ``composite_every``-th composited frame as PNG) and ``composites.mp4`` (all);
 - ``stage_times.csv`` (raw: one row per stage execution) and, generated from it by
   :mod:`apps.report`, ``timing.csv``, ``timing.md`` and ``timing.png``;
@@ -32,7 +34,9 @@ from tqdm import tqdm
 
 from apps.accuracy import AccuracyTracker
 from apps.preview import depth_to_colourmap, tonemap
+from apps.progress import bar_disable
 from rgbd_envmap.config import dump_yaml
+from rgbd_envmap.envmap_io import write_envmap
 from rgbd_envmap.pipeline import ColourStep, DepthStep, Pipeline
 from rgbd_envmap.timing import write_records
 from rgbd_envmap.types import ColourPacket, DepthPacket
@@ -119,9 +123,12 @@ class VideoWriter:
 
 
 def save_envmap(out: Path, em) -> None:
-    """``envmap.npz`` + colour and depth PNGs of an :class:`~rgbd_envmap.envmap.EnvironmentMap`."""
+    """``envmap.npz``, ``envmap.hdr``, ``envmap.exr`` and colour and depth PNGs of an
+    :class:`~rgbd_envmap.envmap.EnvironmentMap`."""
     np.savez_compressed(out / "envmap.npz", radiance=np.ascontiguousarray(em.radiance), depth_m=em.depth_m,
                         valid=em.valid, origin=em.origin)
+    for name in ("envmap.hdr", "envmap.exr"):
+        write_envmap(out / name, em.radiance, em.valid, em.depth_m, convention="ours", origin=em.origin)
     _write_png(out / "envmap.png", tonemap(em.radiance, em.valid) if em.valid.any() else np.zeros((*em.valid.shape, 3), np.uint8))
     _write_png(out / "envmap_depth.png", depth_to_colourmap(em.depth_m, em.valid, 4.0))
 
@@ -172,7 +179,7 @@ def run_pipeline(
     gc.freeze()  # what exists now (models, scene, kernels) is never garbage: leave it out of collections
     gc.disable()
     try:
-        for i_packet, (packet, gt) in enumerate(tqdm(packets, total=total, desc="pipeline", unit="pkt", disable=not opts.progress)):
+        for i_packet, (packet, gt) in enumerate(tqdm(packets, total=total, desc="pipeline", unit="pkt", disable=bar_disable(opts.progress))):
             if i_packet % _GC_EVERY == 0:
                 gc.collect(1)
             if isinstance(packet, ColourPacket):

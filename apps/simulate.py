@@ -75,7 +75,11 @@ def run_simulate(opts: SimulateOptions) -> dict:
     """Simulate, write ``out/session/``, ``out/preview/`` and ``out/simulation.json``; return the summary."""
     if not opts.duration_s > 0:
         raise InvalidInputError(f"duration: expected seconds > 0, got {opts.duration_s}")
-    check_method(opts.device, ("tango", "kinect"), "device")
+    check_method(opts.device, ("tango", "kinect", "phone"), "device")
+    if opts.device == "phone":
+        from apps.phone import run_simulate_phone
+
+        return run_simulate_phone(opts)
     scene = load_scene(opts.scene)
     trajectory = load_trajectory(opts.trajectory or scene.default_trajectory)
     if opts.device == "kinect":

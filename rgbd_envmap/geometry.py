@@ -3,6 +3,9 @@
 Conventions (docs/reference/conventions.md):
 
 * Camera frames are OpenCV (x right, y down, z forward); pixel centres at integer coordinates.
+  Focal lengths are signed (``Intrinsics``): u = fx·x′ + cx, v = fy·y′ + cy hold as written, so
+  projection, unprojection and the Newton undistortion (which works on x′, y′ alone) need no case
+  for fy < 0 (ICL-NUIM's y-up camera frame).
 * World frame is right-handed with z up.
 * Equirectangular maps have shape (H, W), W = 2H. Pixel (row v, column u) has its centre at polar
   angle θ = π (v + 0.5) / H from +z and azimuth φ = 2π (u + 0.5) / W − π from +x towards +y;

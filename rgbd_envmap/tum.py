@@ -14,10 +14,28 @@ A sequence directory holds::
       calibration.json   optional (not in the public benchmark): ``Calibration.to_dict()`` of a ``kinect``
                          sensor, plus ``"format": "rgbd-envmap-tum", "version": 1`` when we wrote it
 
+ICL-NUIM's TUM-compatible layout (``associations.txt``, ``*.gt.freiburg``) is read into the same
+:class:`TumSequence` by :mod:`rgbd_envmap.icl`.
+
 Intrinsics come from ``calibration.json`` when present (its ``depth`` and ``colour`` intrinsics must be
 equal and ``T_colour_from_depth`` the identity, since depth is registered to colour), else the
 benchmark's recommended default for the registered images, :data:`TUM_DEFAULT_INTRINSICS` (fx = fy =
-525, cx = 319.5, cy = 239.5, 640×480, no distortion).
+525, cx = 319.5, cy = 239.5, 640×480, no distortion). ``intrinsics=`` overrides both: an
+:class:`Intrinsics`, a preset of :data:`TUM_INTRINSICS` (``"fr1"``, ``"fr2"``, ``"fr3"``: the
+benchmark's calibration of each Kinect's colour camera, which the registered depth shares;
+``"default"``), or ``"auto"``: ``calibration.json``, else the preset the folder's name names
+(``rgbd_dataset_freiburg2_desk`` → ``"fr2"``, :func:`tum_camera_from_name`), else ``"default"``.
+:attr:`TumSequence.intrinsics_source` says which was used and why.
+
+Depth: ``depth_scale`` PNG units per metre (5000, the benchmark's), times ``depth_correction``. The
+benchmark lists a depth correction factor per camera (:data:`TUM_DEPTH_CORRECTION`: 1.035 for
+freiburg1, 1.031 for freiburg2, 1.000 for freiburg3), found by comparing the Kinects' depth with the
+depth of a checkerboard seen by the colour camera; its page (as copies of it quote it) says the
+published depth images are already pre-scaled, so the default is 1 and the factor is for raw
+recordings of those cameras (it multiplies the metric depth).
+
+Poses come from ``groundtruth.txt`` or from any trajectory file in the same format (``trajectory=``, an
+estimated trajectory), both read by :func:`rgbd_envmap.logs.read_tum_trajectory`.
 
 Association (:func:`read_tum_sequence`): the depth image is the frame's clock. Depth and colour images
 are paired as the benchmark's ``associate.py`` pairs them: among all pairs within ``max_dt_s``, greedily
@@ -46,6 +64,9 @@ References:
 from __future__ import annotations
 
 import json
+import math
+import os
+import re
 import shutil
 from collections.abc import Iterable, Iterator
 from contextlib import ExitStack
@@ -64,20 +85,37 @@ from rgbd_envmap.errors import (
     RgbdEnvmapError,
 )
 from rgbd_envmap.logs import read_timestamped_table, read_tum_trajectory
-from rgbd_envmap.types import Calibration, Intrinsics, RigidTransform
+from rgbd_envmap.types import Calibration, Distortion, Intrinsics, RigidTransform
 
 __all__ = [
     "TUM_DEFAULT_INTRINSICS",
+    "TUM_DEPTH_CORRECTION",
     "TUM_DEPTH_SCALE",
+    "TUM_INTRINSICS",
     "TumAssociation",
     "TumFrame",
     "TumSequence",
+    "TumTrajectory",
     "read_tum_sequence",
+    "tum_camera_from_name",
     "write_tum_sequence",
 ]
 
 #: Intrinsics of the benchmark's registered depth and colour images ("ROS default"), no distortion.
 TUM_DEFAULT_INTRINSICS = Intrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
+#: The benchmark's published calibration of each Kinect's colour camera (fx, fy, cx, cy and
+#: d0 … d4 = OpenCV's k1, k2, p1, p2, k3; freiburg3's images are already undistorted), and the ROS
+#: default the benchmark recommends when undistortion is not wanted. The registered depth images
+#: share the colour camera's pixel grid, hence its intrinsics.
+TUM_INTRINSICS = {
+    "fr1": Intrinsics(640, 480, 517.3, 516.5, 318.6, 255.3, Distortion(0.2624, -0.9531, -0.0054, 0.0026, 1.1633)),
+    "fr2": Intrinsics(640, 480, 520.9, 521.0, 325.1, 249.7, Distortion(0.2312, -0.7849, -0.0033, -0.0001, 0.9172)),
+    "fr3": Intrinsics(640, 480, 535.4, 539.2, 320.1, 247.6),
+    "default": TUM_DEFAULT_INTRINSICS,
+}
+#: The benchmark's depth correction factor per camera (applied as metric depth × factor; its page says
+#: the published depth images are already pre-scaled).
+TUM_DEPTH_CORRECTION = {"fr1": 1.035, "fr2": 1.031, "fr3": 1.0, "default": 1.0}
 #: Depth PNG units per metre.
 TUM_DEPTH_SCALE = 5000.0
 #: Largest z-depth a 16-bit PNG can hold, metres.
@@ -87,6 +125,16 @@ FORMAT, VERSION = "rgbd-envmap-tum", 1
 _FRAME_NAMES = ("world", "colour")
 _OWNED = ("rgb", "depth", "rgb.txt", "depth.txt", "groundtruth.txt", "calibration.json")
 _POSE_METHODS = ("nearest", "linear")
+_FREIBURG_RE = re.compile(r"rgbd_dataset_freiburg([123])_")
+
+
+def tum_camera_from_name(path: str | Path) -> str | None:
+    """The :data:`TUM_INTRINSICS` preset that a sequence folder's name names, or None: the
+    benchmark's folders are ``rgbd_dataset_freiburgN_<name>`` (N = 1, 2, 3 → ``"frN"``). Only the
+    folder's own name counts (not its parents'), and only when it names exactly one camera."""
+    name = Path(os.path.abspath(path)).name  # "." and ".." name the folder; a symlink keeps its own name
+    found = set(_FREIBURG_RE.findall(name))
+    return f"fr{found.pop()}" if len(found) == 1 else None
 
 
 @dataclass(frozen=True)
@@ -155,18 +203,41 @@ class TumSequence:
     Attributes:
         root: the sequence directory.
         intrinsics: of the registered depth and colour images.
-        calibration: the ``calibration.json`` contents, or None when the default intrinsics are used.
+        calibration: the ``calibration.json`` contents, or None when it was not read (absent, or
+            ``intrinsics=`` given).
         frames: list of :class:`TumAssociation` in depth-timestamp order.
         skipped: {"no_rgb": n, "no_pose": n} depth images dropped by the association, and
             {"rgb_unused": n} colour images that no depth image took.
         max_dt_s, poses: the association settings used.
+        intrinsics_source: (name, reason): the preset name (``"fr1"`` …, ``"default"``),
+            ``"calibration.json"`` or ``"given"``, and why it was chosen, in words.
+        depth_scale: PNG units per metre; depth_correction: factor on the metric depth.
+        trajectory: the pose file read (``groundtruth.txt`` unless another was given).
+        index_names: the index files that name the depth and colour images (for error messages).
     """
 
     def __init__(self, root: Path, intrinsics: Intrinsics, calibration: Calibration | None, frames: list[TumAssociation],
-                 skipped: dict[str, int], max_dt_s: float, poses: str) -> None:
-        """Use :func:`read_tum_sequence`."""
+                 skipped: dict[str, int], max_dt_s: float, poses: str, *,
+                 intrinsics_source: tuple[str, str] = ("given", "given by the caller"),
+                 depth_scale: float = TUM_DEPTH_SCALE, depth_correction: float = 1.0,
+                 trajectory: Path | None = None, index_names: tuple[str, str] = ("depth.txt", "rgb.txt")) -> None:
+        """Use :func:`read_tum_sequence` (or :func:`rgbd_envmap.icl.read_icl_nuim_sequence`)."""
         self.root, self.intrinsics, self.calibration = root, intrinsics, calibration
         self.frames, self.skipped, self.max_dt_s, self.poses = frames, skipped, max_dt_s, poses
+        self.intrinsics_source = intrinsics_source
+        self.depth_scale = _positive_number(depth_scale, "depth_scale")
+        self.depth_correction = _positive_number(depth_correction, "depth_correction")
+        self.trajectory = trajectory if trajectory is not None else Path(root) / "groundtruth.txt"
+        self.index_names = index_names
+
+    @property
+    def pipeline_calibration(self) -> Calibration:
+        """The :class:`Calibration` a pipeline runs this sequence with: ``calibration.json``'s when it
+        was read, else a ``kinect`` calibration of :attr:`intrinsics` for both cameras (registered
+        depth: identity extrinsics), 30 Hz."""
+        if self.calibration is not None:
+            return self.calibration
+        return Calibration("kinect", self.intrinsics, self.intrinsics, RigidTransform.identity("colour", "depth"), 30.0, 30.0)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -192,20 +263,24 @@ class TumSequence:
         """
         a = self.frames[i]
         h, w = self.intrinsics.shape
-        depth = _read_png(a.depth_path, f"depth.txt line {a.depth_line}")
+        d_where, c_where = f"{self.index_names[0]} line {a.depth_line}", f"{self.index_names[1]} line {a.rgb_line}"
+        depth = _read_png(a.depth_path, d_where)
         if depth.dtype != np.uint16 or depth.ndim != 2:
-            raise LogFormatError(f"{a.depth_path} (depth.txt line {a.depth_line}): expected a single-channel 16-bit depth PNG, "
+            raise LogFormatError(f"{a.depth_path} ({d_where}): expected a single-channel 16-bit depth PNG, "
                                  f"got dtype {depth.dtype} with shape {depth.shape}")
         if depth.shape != (h, w):
-            raise LogFormatError(f"{a.depth_path} (depth.txt line {a.depth_line}): expected {h}×{w} from the intrinsics, got {depth.shape}")
-        bgr = _read_png(a.rgb_path, f"rgb.txt line {a.rgb_line}")
+            raise LogFormatError(f"{a.depth_path} ({d_where}): expected {h}×{w} from the intrinsics, got {depth.shape}")
+        bgr = _read_png(a.rgb_path, c_where)
         if bgr.dtype != np.uint8 or bgr.ndim != 3 or bgr.shape[2] != 3:
-            raise LogFormatError(f"{a.rgb_path} (rgb.txt line {a.rgb_line}): expected an 8-bit 3-channel colour PNG, "
+            raise LogFormatError(f"{a.rgb_path} ({c_where}): expected an 8-bit 3-channel colour PNG, "
                                  f"got dtype {bgr.dtype} with shape {bgr.shape}")
         if bgr.shape[:2] != (h, w):
-            raise LogFormatError(f"{a.rgb_path} (rgb.txt line {a.rgb_line}): expected {h}×{w} from the intrinsics, got {bgr.shape[:2]}")
+            raise LogFormatError(f"{a.rgb_path} ({c_where}): expected {h}×{w} from the intrinsics, got {bgr.shape[:2]}")
         known = depth > 0
-        depth_m = (depth / TUM_DEPTH_SCALE).astype(np.float32)
+        metres = depth / self.depth_scale
+        if self.depth_correction != 1.0:
+            metres = metres * self.depth_correction
+        depth_m = metres.astype(np.float32)
         return TumFrame(a.timestamp_ns, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), depth_m, known, a.T_world_from_cam, a.rgb_timestamp_ns)
 
 
@@ -237,11 +312,46 @@ def _read_images(root: Path, name: str) -> list[tuple[int, int, Path]]:
     return out
 
 
+def _positive_number(value: object, name: str) -> float:
+    """``value`` as a float, raising :class:`RangeError` unless it is a finite number > 0 (a depth
+    scale in units per metre, or a correction factor)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise RangeError(f"{name}: expected a finite number > 0, got {value!r}")
+    v = float(value)
+    if not (math.isfinite(v) and v > 0.0):
+        raise RangeError(f"{name}: expected a finite number > 0, got {value!r}")
+    return v
+
+
 def _read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N,) int64 timestamps, (N, 3) translations, (N, 4) unit quaternions xyzw of groundtruth.txt."""
     stamps, translations, quaternions = read_tum_trajectory(path)
     unit = np.array([q / np.linalg.norm(q) for q in quaternions], dtype=np.float64).reshape(-1, 4)
     return stamps, translations, unit
+
+
+class TumTrajectory:
+    """A trajectory file in TUM RGB-D format (``timestamp tx ty tz qx qy qz qw``: T_world_from_cam of
+    the colour camera), read by :func:`rgbd_envmap.logs.read_tum_trajectory`, for pose look-ups by time.
+
+    Raises:
+        LogFormatError: the file is missing or malformed (naming the file and line).
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.timestamps_ns, self.translations, self.quaternions = _read_groundtruth(self.path)
+
+    def __len__(self) -> int:
+        return len(self.timestamps_ns)
+
+    def pose_at(self, timestamp_ns: int, max_dt_ns: int, method: str = "nearest") -> tuple[RigidTransform, int] | None:
+        """The pose at ``timestamp_ns`` as ``(T_world_from_cam, pose time − timestamp_ns)``, or None
+        when no pose lies within ``max_dt_ns``: the nearest pose (``"nearest"``) or the one
+        interpolated between the two poses around it, each within ``max_dt_ns`` (``"linear"``: linear
+        in translation, slerp in rotation; the time offset is then 0)."""
+        check_method(method, _POSE_METHODS, "poses")
+        return _pose_at(int(timestamp_ns), self.timestamps_ns, self.translations, self.quaternions, int(max_dt_ns), method)
 
 
 def _read_calibration(path: Path) -> Calibration:
@@ -307,7 +417,8 @@ def _pose_at(ns: int, stamps: np.ndarray, trans: np.ndarray, quats: np.ndarray, 
 
 
 def read_tum_sequence(path: str | Path, *, max_dt_s: float = 0.02, poses: str = "nearest",
-                      intrinsics: Intrinsics | None = None) -> TumSequence:
+                      intrinsics: Intrinsics | str | None = None, depth_scale: float = TUM_DEPTH_SCALE,
+                      depth_correction: float = 1.0, trajectory: str | Path | None = None) -> TumSequence:
     """Open a TUM RGB-D sequence and associate its depth images, colour images and poses.
 
     Args:
@@ -317,7 +428,15 @@ def read_tum_sequence(path: str | Path, *, max_dt_s: float = 0.02, poses: str = 
             (``"linear"``). The benchmark's ``associate.py`` uses 0.02 s.
         poses: ``"nearest"`` (the pose nearest in time) or ``"linear"`` (interpolated: linear in
             translation, slerp in rotation).
-        intrinsics: overrides both ``calibration.json`` and the default.
+        intrinsics: None (``calibration.json`` if present, else :data:`TUM_DEFAULT_INTRINSICS`), an
+            :class:`Intrinsics` or a :data:`TUM_INTRINSICS` preset name (both override
+            ``calibration.json``), or ``"auto"``: ``calibration.json``, else the preset the folder's name
+            names (:func:`tum_camera_from_name`), else ``"default"``.
+        depth_scale: depth PNG units per metre (> 0; the benchmark's 5000).
+        depth_correction: factor on the metric depth (> 0; e.g. ``TUM_DEPTH_CORRECTION["fr1"]`` for a
+            freiburg1 recording that does not carry it yet; 1 for the published images).
+        trajectory: a TUM-format pose file to use instead of ``groundtruth.txt`` (e.g. an estimated
+            trajectory); a relative path is relative to the working directory.
 
     Returns:
         A :class:`TumSequence`; images are read when a frame is loaded.
@@ -333,18 +452,35 @@ def read_tum_sequence(path: str | Path, *, max_dt_s: float = 0.02, poses: str = 
     if not np.isfinite(max_dt_s) or max_dt_s < 0:
         raise RangeError(f"max_dt_s: expected a finite value >= 0, got {max_dt_s}")
     check_method(poses, _POSE_METHODS, "poses")
+    depth_scale = _positive_number(depth_scale, "depth_scale")
+    depth_correction = _positive_number(depth_correction, "depth_correction")
     calibration = None
-    if intrinsics is None:
+    if intrinsics is None or intrinsics == "auto":
+        auto = intrinsics == "auto"
+        camera = tum_camera_from_name(root) if auto else None
         if (root / "calibration.json").is_file():
             calibration = _read_calibration(root / "calibration.json")
             intrinsics = calibration.colour
+            source = ("calibration.json", "calibration.json in the sequence folder")
+        elif camera is not None:
+            intrinsics = TUM_INTRINSICS[camera]
+            source = (camera, f"no calibration.json; the folder name {Path(os.path.abspath(root)).name!r} names "
+                              f"freiburg{camera[2]}")
         else:
             intrinsics = TUM_DEFAULT_INTRINSICS
-    elif not isinstance(intrinsics, Intrinsics):
-        raise InvalidInputError(f"intrinsics: expected an Intrinsics, got {type(intrinsics).__name__}")
+            source = ("default", "no calibration.json" + (" and the folder name names no freiburg camera" if auto else ""))
+    elif isinstance(intrinsics, str):
+        check_method(intrinsics, (*TUM_INTRINSICS, "auto"), "intrinsics")
+        source = (intrinsics, "given by name")
+        intrinsics = TUM_INTRINSICS[intrinsics]
+    elif isinstance(intrinsics, Intrinsics):
+        source = ("given", "given by the caller")
+    else:
+        raise InvalidInputError(f"intrinsics: expected an Intrinsics, a preset name or 'auto', got {type(intrinsics).__name__}")
     depth = _read_images(root, "depth.txt")
     rgb = _read_images(root, "rgb.txt")
-    stamps, trans, quats = _read_groundtruth(root / "groundtruth.txt")
+    trajectory_path = root / "groundtruth.txt" if trajectory is None else Path(trajectory)
+    track = TumTrajectory(trajectory_path)
     max_dt_ns = round(max_dt_s * 1e9)
     pairs = _associate(depth, rgb, max_dt_ns)
     frames: list[TumAssociation] = []
@@ -352,12 +488,13 @@ def read_tum_sequence(path: str | Path, *, max_dt_s: float = 0.02, poses: str = 
     for i in sorted(pairs):
         d_line, d_ns, d_path = depth[i]
         c_line, c_ns, c_path = rgb[pairs[i]]
-        pose = _pose_at(d_ns, stamps, trans, quats, max_dt_ns, poses)
+        pose = track.pose_at(d_ns, max_dt_ns, poses)
         if pose is None:
             skipped["no_pose"] += 1
             continue
         frames.append(TumAssociation(d_ns, d_path, c_ns, c_path, d_line, c_line, pose[0], pose[1]))
-    return TumSequence(root, intrinsics, calibration, frames, skipped, max_dt_s, poses)
+    return TumSequence(root, intrinsics, calibration, frames, skipped, max_dt_s, poses, intrinsics_source=source,
+                       depth_scale=depth_scale, depth_correction=depth_correction, trajectory=trajectory_path)
 
 
 def _format_stamp(ns: int, decimals: int) -> str:

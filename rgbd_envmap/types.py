@@ -105,6 +105,12 @@ class Intrinsics:
 
     Pixel centres sit at integer coordinates (OpenCV): pixel (row v, column u) covers
     [u − 0.5, u + 0.5] × [v − 0.5, v + 0.5].
+
+    The focal lengths are signed: u = fx·x′ + cx and v = fy·y′ + cy hold exactly as written in the
+    camera frame the pose names, so fy < 0 means the image's rows run against the frame's +y (ICL-NUIM
+    publishes fy = −480 for its POV-Ray renders: its camera frame has y up). Zero is rejected. Whatever
+    needs a size in pixels from a focal length (a footprint, a stretch test, the field of view) uses
+    |fx| and |fy|.
     """
 
     width: int
@@ -126,8 +132,8 @@ class Intrinsics:
             if not np.isfinite(value):
                 raise NonFiniteError(f"Intrinsics.{name}: expected a finite value, got {value}")
             object.__setattr__(self, name, value)
-        if self.fx <= 0 or self.fy <= 0:
-            raise RangeError(f"Intrinsics: focal lengths must be > 0, got fx={self.fx}, fy={self.fy}")
+        if self.fx == 0 or self.fy == 0:
+            raise RangeError(f"Intrinsics: focal lengths must be non-zero (signed), got fx={self.fx}, fy={self.fy}")
 
     @property
     def K(self) -> np.ndarray:
@@ -141,10 +147,18 @@ class Intrinsics:
 
     @property
     def fov_deg(self) -> tuple[float, float]:
-        """Horizontal and vertical field of view in degrees of the undistorted pinhole."""
-        h = np.degrees(np.arctan(self.cx / self.fx + 0.5 / self.fx) + np.arctan((self.width - 0.5 - self.cx) / self.fx))
-        v = np.degrees(np.arctan(self.cy / self.fy + 0.5 / self.fy) + np.arctan((self.height - 0.5 - self.cy) / self.fy))
+        """Horizontal and vertical field of view in degrees of the undistorted pinhole (the sign of a
+        focal length mirrors the image, not its extent: |fx|, |fy|)."""
+        fx, fy = abs(self.fx), abs(self.fy)
+        h = np.degrees(np.arctan(self.cx / fx + 0.5 / fx) + np.arctan((self.width - 0.5 - self.cx) / fx))
+        v = np.degrees(np.arctan(self.cy / fy + 0.5 / fy) + np.arctan((self.height - 0.5 - self.cy) / fy))
         return float(h), float(v)
+
+    @property
+    def focal_px(self) -> float:
+        """The mean focal length in pixels, 0.5 (|fx| + |fy|): a pixel's size on a surface facing the
+        camera at distance r is about r / ``focal_px``."""
+        return 0.5 * (abs(self.fx) + abs(self.fy))
 
     def scaled(self, width: int, height: int) -> "Intrinsics":
         """The same camera resampled to ``width`` × ``height`` (pixel-centre convention kept)."""

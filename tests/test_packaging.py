@@ -14,7 +14,9 @@ Run as a script (``python tests/test_packaging.py``) to print the import → dis
 from __future__ import annotations
 
 import ast
+import importlib.machinery
 import importlib.metadata as md
+import inspect
 import json
 import os
 import re
@@ -67,12 +69,26 @@ def _third_party_imports() -> dict[str, list[tuple[str, bool]]]:
     return found
 
 
+def _distributions_of_imports() -> dict[str, list[str]]:
+    """Import name → distributions: :func:`importlib.metadata.packages_distributions`, plus top-level
+    extension modules shipped without ``top_level.txt`` (OpenEXR's ``OpenEXR.*.so``), which Python 3.11
+    infers only from ``.py`` files (3.12 infers them too)."""
+    found = {name: list(dists) for name, dists in md.packages_distributions().items()}
+    for dist in md.distributions():
+        for f in dist.files or ():
+            if len(f.parts) == 1 and any(f.name.endswith(s) for s in importlib.machinery.EXTENSION_SUFFIXES):
+                name = inspect.getmodulename(f.name)
+                if name and dist.metadata["Name"] not in found.setdefault(name, []):
+                    found[name].append(dist.metadata["Name"])
+    return found
+
+
 def dependency_report() -> tuple[list[str], list[str]]:
     """(table lines, problems): each third-party import, its distribution and where it is declared."""
     project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
     runtime = {_requirement_name(r) for r in project["dependencies"]}
     extras = {e: {_requirement_name(r) for r in rs} for e, rs in project.get("optional-dependencies", {}).items()}
-    dists_of = md.packages_distributions()
+    dists_of = _distributions_of_imports()
     lines, problems, used = [], [], set()
     for top, sites in sorted(_third_party_imports().items()):
         dists = sorted({_norm(d) for d in dists_of.get(top, [])})

@@ -12,7 +12,7 @@ shadows and on dark or shiny surfaces. Knecht et al. reuse the previous frames i
    non-finite, ≤ 0, or closer than ``near_m`` after the move) or when it is *stretched*: one of its
    3-D edges is longer than ``max_stretch`` pixel footprints,
 
-       |P_a − P_b| > max_stretch · s · min(z_a, z_b) / f,     f = √(fx fy),
+       |P_a − P_b| > max_stretch · s · min(z_a, z_b) / f,     f = √|fx fy| (focal lengths are signed),
 
    with s = 1 for a side and √2 for a diagonal of the pixel grid. A fronto-parallel surface has
    stretch 1 and a surface seen at incidence θ has 1/cos θ, so the default 20 keeps surfaces up to
@@ -114,7 +114,7 @@ class KinectMergeConfig:
     on the simulated Kinect in docs/design/kinect_merge.md)."""
 
     #: a triangle (warp) or a neighbour (normals) is dropped when a 3-D edge is longer than this many
-    #: pixel footprints (footprint: s · min(z_a, z_b) / √(fx fy), s = 1 side, √2 diagonal).
+    #: pixel footprints (footprint: s · min(z_a, z_b) / √|fx fy|, s = 1 side, √2 diagonal).
     max_stretch: float = 20.0
     #: weight cap of the running average (new samples never weigh less than 1 / (max_weight + 1)).
     max_weight: float = 32.0
@@ -228,7 +228,7 @@ def _camera(intrinsics: Intrinsics) -> tuple:
     rx32, ry32 = rx.astype(np.float32), ry.astype(np.float32)
     for a in (rx, ry, rays, cam, dist, rx32, ry32):
         a.setflags(write=False)
-    return rays, use_table, rx, ry, cam, dist, math.sqrt(i.fx * i.fy), use_table, rx32, ry32
+    return rays, use_table, rx, ry, cam, dist, math.sqrt(abs(i.fx * i.fy)), use_table, rx32, ry32
 
 
 def _stretch_k2(max_stretch: float, f: float) -> tuple[float, float]:

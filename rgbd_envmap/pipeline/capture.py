@@ -45,22 +45,15 @@ from rgbd_envmap.colour import (
 )
 from rgbd_envmap.depth.reliability import discontinuity_passed
 from rgbd_envmap.errors import DTypeError, RangeError
-from rgbd_envmap.envmap.map import EnvironmentMap
+from rgbd_envmap.envmap.map import MAP_BYTES_PER_PIXEL, MAX_MAP_PIXELS, EnvironmentMap
 from rgbd_envmap.envmap.pairs import frame_pair_sums, frame_pairs, frame_samples
 from rgbd_envmap.envmap.map_update import SeenDepth, UpdateConfig, UpdateStats, update
 from rgbd_envmap.timing import StageTimer
 from rgbd_envmap.types import RGBDFrame
 
-__all__ = ["CaptureConfig", "CaptureStep", "EnvironmentCapture", "FILLED_PIXEL_MODES", "MAX_MAP_PIXELS",
-           "MAP_BYTES_PER_PIXEL"]
+__all__ = ["CaptureConfig", "CaptureStep", "EnvironmentCapture", "FILLED_PIXEL_MODES"]
 
 FILLED_PIXEL_MODES = ("plane_consistent", "all", "none")
-#: bytes a map pixel takes while capturing: planar float32 radiance (12), float32 distance (4), the
-#: valid flag (1) and the colour-average count (1); the translated view and the SH tracker take as much
-#: again.
-MAP_BYTES_PER_PIXEL = 18
-#: the largest map a capture accepts (8192 × 4096: about 0.6 GiB for the map itself).
-MAX_MAP_PIXELS = 8192 * 4096
 
 
 class _NullTimer:
@@ -246,7 +239,7 @@ class EnvironmentCapture:
         # and the colours corrected (apply_ccm(frame.rgb[mask], matrix), up to float32 rounding).
         pts, colours, fill_only = frame_samples(frame.depth_m, mask, frame.intrinsics, frame.T_world_from_cam, frame.rgb,
                                                 near_edge, matrix)
-        focal = 0.5 * (frame.intrinsics.fx + frame.intrinsics.fy)
+        focal = frame.intrinsics.focal_px  # 0.5 (|fx| + |fy|): focal lengths are signed (ICL-NUIM's fy < 0)
         seen = SeenDepth(raw.depth_m, raw.known, raw.intrinsics, raw.T_world_from_cam)  # measured only
         return update(self.em, pts, colours, frame.T_world_from_cam.translation, focal, self.config.update,
                       None if near_edge is None else fill_only, seen, threads=self.threads)

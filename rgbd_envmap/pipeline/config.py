@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 from rgbd_envmap.checks import check_method, check_positive_int
 from rgbd_envmap.envmap.translation import TRANSLATE_METHODS
+from rgbd_envmap.envmap_io import CONVENTIONS
 from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.ingest.kinect import KinectMergeConfig
 from rgbd_envmap.ingest.tango import TangoIngestConfig
@@ -24,12 +25,25 @@ __all__ = ["ShadingConfig", "ObjectConfig", "RenderConfig", "PipelineConfig"]
 @dataclass(frozen=True)
 class ShadingConfig:
     """SH lighting: ``bands`` (5 = 25 coefficients per channel, the paper's), or the fewest bands whose
-    shading of the object stays within ``band_tolerance`` of ``max_bands`` (``auto_bands``)."""
+    shading of the object stays within ``band_tolerance`` of ``max_bands`` (``auto_bands``).
+
+    ``lighting_file``: an HDR map (``.hdr`` / ``.exr``, equirect; :mod:`rgbd_envmap.envmap_io`) that
+    lights the object instead of the captured map; its SH coefficients are projected once, and the
+    map is still captured. ``lighting_convention``: the file's orientation ("ours", "blender",
+    "mitsuba"; docs/reference/export.md), None for the one the file records, else "ours"."""
 
     bands: int = 5
     auto_bands: bool = False
     band_tolerance: float = 0.01
     max_bands: int = 8
+    lighting_file: str | None = None
+    lighting_convention: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.lighting_convention is not None:
+            check_method(self.lighting_convention, CONVENTIONS, "shading.lighting_convention")
+        if self.lighting_file is not None and not (isinstance(self.lighting_file, str) and self.lighting_file):
+            raise InvalidInputError(f"shading.lighting_file: expected a file name or None, got {self.lighting_file!r}")
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,12 @@ Stages are timed under the names of the paper's Table 1 (:data:`STAGES`); ``dept
 stages of a depth packet except rendering, ``colour_frame_total`` is shade + rasterise + composite of
 a colour frame. The EM is the only state besides the latest matrix, coefficients and shading.
 
+**Lighting from a file.** With ``lighting`` (or ``shading.lighting_file``) the object is lit by that
+fixed map instead of the captured one: its SH coefficients are projected once, when the pipeline is
+built, and the object is shaded from them; depth packets still correct and update the captured map
+(stages "Calculate SH coefficients*" and "Shade object (PRT)" then do not run per packet). A real HDR
+map is the usual baseline for captured lighting.
+
 The object stands on the surface under the EM origin: its base is ``object.base_below_origin_m``
 below the origin (the EM origin is the paper's "virtual object position"). :meth:`Pipeline.move_object`
 displaces it; the lighting then comes from the EM translated to the new position (§6.2), either as
@@ -106,6 +112,18 @@ class ColourStep:
     frame_srgb: np.ndarray
 
 
+def _lighting_arrays(lighting) -> tuple[np.ndarray, np.ndarray | None]:
+    """(radiance (H, W, 3), valid (H, W) or None) of a fixed lighting map (see :class:`Pipeline`)."""
+    if hasattr(lighting, "radiance") and hasattr(lighting, "valid"):
+        return lighting.radiance, lighting.valid
+    if isinstance(lighting, tuple) and len(lighting) == 2:
+        return lighting[0], lighting[1]
+    if isinstance(lighting, np.ndarray):
+        return lighting, None
+    raise InvalidInputError("lighting: expected an EnvironmentMap, an object with radiance and valid, a (radiance, "
+                            f"valid) pair or an (H, W, 3) radiance array, got {type(lighting).__name__}")
+
+
 class Pipeline:
     """Runs the stages per packet (see the module docstring); ``feed`` packets in delivery order."""
 
@@ -117,7 +135,19 @@ class Pipeline:
         *,
         cache_dir: str | Path | None = None,
         timer: StageTimer | None = None,
+        lighting=None,
     ) -> None:
+        """Args:
+            config, calibration: the settings and the device's calibration.
+            origin: (3,) world metres, the map's origin (the object's position).
+            cache_dir: where the object's PRT transfer is cached.
+            timer: collects the stage timings (a new one by default).
+            lighting: a fixed lighting map instead of the captured one: an
+                :class:`~rgbd_envmap.envmap.EnvironmentMap` or anything with ``radiance`` (H, W, 3) and
+                ``valid`` (H, W) in our orientation (e.g. :class:`~rgbd_envmap.envmap_io.EnvmapFile`), a
+                ``(radiance, valid)`` pair, or an (H, W, 3) radiance array (every pixel valid). None:
+                the file ``config.shading.lighting_file`` if set, else the captured map.
+        """
         self.config = config
         self.calibration = calibration
         self.capture = EnvironmentCapture(check_array(origin, "origin", shape=(3,), finite=True), config.capture,
@@ -150,6 +180,16 @@ class Pipeline:
         self.plane_alpha: np.ndarray | None = None
         if config.render.enabled or config.shading.auto_bands:
             self._load_object()
+        if lighting is None and config.shading.lighting_file is not None:
+            from rgbd_envmap.envmap_io import read_envmap
+
+            lighting = read_envmap(config.shading.lighting_file, config.shading.lighting_convention)
+        #: the object is lit by a fixed map given at construction, not by the captured one.
+        self.fixed_lighting = lighting is not None
+        if self.fixed_lighting:
+            # Projected once, as setup (like the PRT transfer): not one of the per-packet stages.
+            self.coeffs = sh.project_equirect(*_lighting_arrays(lighting), bands=max_bands)
+            self._use_coefficients(StageTimer())
 
     # --- the virtual object --------------------------------------------------------------------------
 
@@ -309,7 +349,7 @@ class Pipeline:
                 reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=self.config.ingest.reliability_method)
         step = self.capture.process(frame, reliable, filled, across_edges=across_edges, timer=t)
         sh_updated = False
-        if step.projected or not self.has_lighting:
+        if not self.fixed_lighting and (step.projected or not self.has_lighting):
             if self.capture.em.valid.any():
                 self._relight()
                 sh_updated = True
@@ -328,27 +368,34 @@ class Pipeline:
             return self._translated
 
     def _relight(self) -> None:
-        """SH coefficients of the (possibly translated) map → band choice → shading of the object."""
+        """SH coefficients of the (possibly translated) map → band choice → shading of the object
+        (nothing to do with fixed lighting: its shading was set up at construction)."""
+        if self.fixed_lighting:
+            return
         em = self._lighting_map()
         if not em.valid.any():
             return
         with self.timer.stage("Calculate SH coefficients*"):
             self.coeffs = self._projection.coefficients(em)
+        self._use_coefficients(self.timer)
+
+    def _use_coefficients(self, timer: StageTimer) -> None:
+        """Band choice and shading of the object from ``self.coeffs``."""
         self.has_lighting = True
         sc = self.config.shading
         if sc.auto_bands and self._transfer is not None:
-            with self.timer.stage("Select SH bands"):
+            with timer.stage("Select SH bands"):
                 if self._gram is None:
                     self._gram = sh.transfer_gram(self._transfer)  # once per object, not per selection
                 self.bands = sh.select_bands(self.coeffs, self._gram, tolerance=sc.band_tolerance, max_bands=sc.max_bands).bands
         if self._object is not None:
-            self._shade()
+            self._shade(timer)
 
-    def _shade(self) -> None:
+    def _shade(self, timer: StageTimer) -> None:
         from rgbd_envmap import prt
 
         n = self.bands * self.bands
-        with self.timer.stage("Shade object (PRT)"):
+        with timer.stage("Shade object (PRT)"):
             if self._shade_out is None:
                 self._shade_out = np.empty((len(self._transfer), 3), np.float32)
             # A fresh buffer per call, not the one the renderer may still hold: swap two buffers.

@@ -6,7 +6,7 @@ unprojected with its depth, moved by ``T`` (T_cur_from_prev) and projected into 
 (distortion included); it is invalid when its depth is unknown or it lands closer than ``near``.
 Each grid quad (v, u)…(v + 1, u + 1) is split along the diagonal 01–10 when that 3-D edge is not
 stretched, else along 00–11; a triangle is drawn when its three vertices are valid and none of its
-edges is stretched (longer than ``max_stretch`` · s · min(z_a, z_b) / √(fx fy), s = 1 for a side,
+edges is stretched (longer than ``max_stretch`` · s · min(z_a, z_b) / √|fx fy|, s = 1 for a side,
 √2 for a diagonal). The pixel centres of a quad's half-open box are tested against each drawn
 triangle (inclusive, tolerance 1e-7); 1/z is interpolated with the barycentrics and the closest
 depth wins, with the weight of the triangle's nearest vertex (largest barycentric). Finally every
@@ -58,7 +58,7 @@ def warp_reference(depth: np.ndarray, weight: np.ndarray, known: np.ndarray, int
     uv, _ = project_points(Qs.reshape(-1, 3), intr)
     X, Y = uv[:, 0].reshape(h, w), uv[:, 1].reshape(h, w)
     IZ = np.where(valid, 1.0 / Qs[..., 2], 0.0)
-    k2 = (max_stretch / np.sqrt(intr.fx * intr.fy)) ** 2
+    k2 = (max_stretch / np.sqrt(abs(intr.fx * intr.fy))) ** 2
 
     def ok(a, b, s2):
         zm = min(P[a][2], P[b][2])

@@ -208,6 +208,66 @@ def test_pixel_rays_have_unit_z_and_match_unproject_of_pixel_centres():
     np.testing.assert_allclose(uv_back, uv, rtol=0, atol=TOL.px)
 
 
+# --- signed focal lengths (ICL-NUIM's fy = −480) ------------------------------------------------------
+
+SIGNS = [(1, -1), (-1, 1), (-1, -1)]
+
+
+def _signed(fx_sign: int, fy_sign: int, distortion: Distortion) -> Intrinsics:
+    return Intrinsics(WIDTH, HEIGHT, fx_sign * FX, fy_sign * FY, CX, CY, distortion)
+
+
+@pytest.mark.parametrize("fx_sign, fy_sign", SIGNS)
+@pytest.mark.parametrize("name", ["none", "brown5", "radial3"])
+def test_signed_focal_lengths_project_as_written_and_match_cv2(fx_sign, fy_sign, name):
+    """u = fx·x′ + cx, v = fy·y′ + cy with the signs as given: against OpenCV's projectPoints with the
+    same (signed) camera matrix, and against the positive camera mirrored about the principal point
+    (u ↦ 2cx − u where fx < 0, v ↦ 2cy − v where fy < 0)."""
+    d = DISTORTIONS[name]
+    intr = _signed(fx_sign, fy_sign, d)
+    p = _points_over_image(np.random.default_rng(11), 2000)
+    uv, in_front = geometry.project_points(p, intr)
+    assert in_front.all()
+    K = np.array([[fx_sign * FX, 0.0, CX], [0.0, fy_sign * FY, CY], [0.0, 0.0, 1.0]])
+    ref, _ = cv2.projectPoints(p.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, d.coefficients)
+    np.testing.assert_allclose(uv, ref[:, 0, :], rtol=0, atol=TOL.px)
+    pos, _ = geometry.project_points(p, _intrinsics(d))
+    mirrored = np.stack([pos[:, 0] if fx_sign > 0 else 2 * CX - pos[:, 0], pos[:, 1] if fy_sign > 0 else 2 * CY - pos[:, 1]], -1)
+    np.testing.assert_allclose(uv, mirrored, rtol=0, atol=TOL.px)
+
+
+@pytest.mark.parametrize("fx_sign, fy_sign", SIGNS)
+@pytest.mark.parametrize("name", list(DISTORTIONS))
+def test_signed_focal_lengths_round_trip(fx_sign, fy_sign, name):
+    """unproject(project(p)) = p and project(unproject(uv)) = uv over the whole image (Newton
+    undistortion included) with negative focal lengths."""
+    intr = _signed(fx_sign, fy_sign, DISTORTIONS[name])
+    p = _points_over_image(np.random.default_rng(12), 3000)
+    uv, in_front = geometry.project_points(p, intr)
+    assert in_front.all()
+    assert uv[:, 0].min() < 20 and uv[:, 0].max() > WIDTH - 20 and uv[:, 1].min() < 20 and uv[:, 1].max() > HEIGHT - 20
+    np.testing.assert_allclose(geometry.unproject_pixels(uv, p[:, 2], intr), p, rtol=0, atol=TOL.m)
+    uu, vv = np.meshgrid(np.array([-0.5, 0.0, CX, WIDTH - 1.0, WIDTH - 0.5]), np.array([-0.5, 0.0, CY, HEIGHT - 1.0, HEIGHT - 0.5]))
+    corners = np.stack([uu.ravel(), vv.ravel()], axis=-1)
+    q = geometry.unproject_pixels(corners, np.linspace(0.3, 9.0, len(corners)), intr)
+    back, in_front = geometry.project_points(q, intr)
+    assert in_front.all()
+    np.testing.assert_allclose(back, corners, rtol=0, atol=TOL.px)
+
+
+def test_pixel_rays_with_negative_fy_point_up_the_image():
+    """fy < 0: the top rows see +y of the camera frame, and the ray grid is the positive camera's
+    grid upside down (exactly, with the principal point on the centre row)."""
+    pos = Intrinsics(40, 30, 35.0, 36.0, 19.5, 14.5, Distortion(K1, K2, P1, P2, K3))
+    neg = Intrinsics(40, 30, 35.0, -36.0, 19.5, 14.5, Distortion(K1, K2, P1, P2, K3))
+    rays_pos, rays_neg = geometry.pixel_rays(pos), geometry.pixel_rays(neg)
+    assert (rays_neg[0, :, 1] > 0).all() and (rays_neg[-1, :, 1] < 0).all()
+    np.testing.assert_allclose(rays_neg, rays_pos[::-1], rtol=0, atol=1e-15)
+    uv_back, _ = geometry.project_points(rays_neg.reshape(-1, 3), neg)
+    vv, uu = np.mgrid[0:30, 0:40]
+    np.testing.assert_allclose(uv_back, np.stack([uu.ravel(), vv.ravel()], -1), rtol=0, atol=TOL.px)
+
+
 def test_pixel_rays_are_read_only_and_cached():
     intr = Intrinsics(8, 6, 5.0, 5.0, 3.5, 2.5, Distortion(0.1, 0.0, 0.0, 0.0, 0.0))
     rays = geometry.pixel_rays(intr)

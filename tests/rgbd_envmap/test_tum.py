@@ -24,11 +24,15 @@ from rgbd_envmap.errors import (
 )
 from rgbd_envmap.tum import (
     TUM_DEFAULT_INTRINSICS,
+    TUM_DEPTH_CORRECTION,
+    TUM_INTRINSICS,
     TumFrame,
+    TumTrajectory,
     read_tum_sequence,
+    tum_camera_from_name,
     write_tum_sequence,
 )
-from rgbd_envmap.types import Intrinsics, RigidTransform
+from rgbd_envmap.types import Calibration, Intrinsics, RigidTransform
 
 W, H = 20, 16
 INTR = Intrinsics(W, H, 18.0, 18.5, 9.5, 7.5)
@@ -470,3 +474,137 @@ def test_tum_frame_validates():
         TumFrame(0, rgb, depth, depth > 0, np.eye(4))
     f = TumFrame(0, rgb, depth.astype(np.float64), depth > 0, T)
     assert f.depth_m.dtype == np.float32 and not f.rgb.flags.writeable
+
+
+# --- the benchmark's cameras, depth scale and other trajectories -----------------------------------
+
+
+def test_presets_are_the_benchmarks_published_calibrations():
+    """The "File Formats" page's table (fx fy cx cy d0 … d4, d in OpenCV's k1 k2 p1 p2 k3 order) and its
+    depth correction factors, typed in again here."""
+    published = {
+        "fr1": (517.3, 516.5, 318.6, 255.3, (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)),
+        "fr2": (520.9, 521.0, 325.1, 249.7, (0.2312, -0.7849, -0.0033, -0.0001, 0.9172)),
+        "fr3": (535.4, 539.2, 320.1, 247.6, (0.0, 0.0, 0.0, 0.0, 0.0)),
+        "default": (525.0, 525.0, 319.5, 239.5, (0.0, 0.0, 0.0, 0.0, 0.0)),
+    }
+    assert set(TUM_INTRINSICS) == set(published)
+    for name, (fx, fy, cx, cy, d) in published.items():
+        intr = TUM_INTRINSICS[name]
+        assert (intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy) == (640, 480, fx, fy, cx, cy)
+        assert tuple(intr.distortion.coefficients) == d
+    assert TUM_INTRINSICS["default"] == TUM_DEFAULT_INTRINSICS
+    assert TUM_DEPTH_CORRECTION == {"fr1": 1.035, "fr2": 1.031, "fr3": 1.0, "default": 1.0}
+
+
+@pytest.mark.parametrize("name, camera", [
+    ("rgbd_dataset_freiburg1_xyz", "fr1"),
+    ("rgbd_dataset_freiburg2_pioneer_360", "fr2"),
+    ("rgbd_dataset_freiburg3_long_office_household_validation", "fr3"),
+    ("rgbd_dataset_freiburg1_desk2", "fr1"),
+    ("freiburg1_xyz", None),  # not the benchmark's folder name
+    ("rgbd_dataset_freiburg4_x", None),
+    ("rgbd_dataset_freiburg1_rgbd_dataset_freiburg2_x", None),  # two cameras named: ambiguous
+    ("my_sequence", None),
+])
+def test_camera_from_folder_name(tmp_path, name, camera):
+    assert tum_camera_from_name(tmp_path / name) == camera
+    assert tum_camera_from_name(f"{tmp_path / name}/") == camera
+    assert tum_camera_from_name(tmp_path / name / "rgbd_dataset_freiburg3_x" / "..") == camera  # ".." is resolved
+
+
+def test_camera_from_name_looks_at_the_folder_not_its_parents(tmp_path, monkeypatch):
+    inner = tmp_path / "rgbd_dataset_freiburg2_desk" / "copy"
+    inner.mkdir(parents=True)
+    assert tum_camera_from_name(inner) is None
+    monkeypatch.chdir(inner.parent)
+    assert tum_camera_from_name(".") == "fr2"
+
+
+def test_auto_intrinsics_calibration_json_then_folder_name_then_default(tmp_path):
+    fr1 = tmp_path / "rgbd_dataset_freiburg1_room"
+    make_index_sequence(fr1, [10**9], [10**9], [10**9])
+    seq = read_tum_sequence(fr1, intrinsics="auto")
+    assert seq.intrinsics == TUM_INTRINSICS["fr1"] and seq.calibration is None
+    assert seq.intrinsics_source[0] == "fr1" and "rgbd_dataset_freiburg1_room" in seq.intrinsics_source[1]
+    # Without "auto" the reader keeps its old default; a preset by name overrides everything.
+    assert read_tum_sequence(fr1).intrinsics == TUM_DEFAULT_INTRINSICS
+    assert read_tum_sequence(fr1, intrinsics="fr3").intrinsics_source == ("fr3", "given by name")
+    other = tmp_path / "seq"
+    make_index_sequence(other, [10**9], [10**9], [10**9])
+    seq = read_tum_sequence(other, intrinsics="auto")
+    assert seq.intrinsics == TUM_DEFAULT_INTRINSICS and seq.intrinsics_source[0] == "default"
+    assert "names no freiburg camera" in seq.intrinsics_source[1]
+    cal = Calibration("kinect", INTR, INTR, RigidTransform.identity("colour", "depth"), 30.0, 30.0)
+    (fr1 / "calibration.json").write_text(json.dumps(cal.to_dict()))
+    seq = read_tum_sequence(fr1, intrinsics="auto")
+    assert seq.intrinsics == INTR and seq.intrinsics_source[0] == "calibration.json"
+    with pytest.raises(UnknownMethodError, match="intrinsics"):
+        read_tum_sequence(fr1, intrinsics="fr4")
+
+
+def test_pipeline_calibration_without_calibration_json(tmp_path):
+    """The regression of issue 21: a published sequence has no calibration.json; the pipeline still
+    gets a kinect Calibration of the intrinsics in use."""
+    make_index_sequence(tmp_path / "s", [10**9], [10**9], [10**9])
+    seq = read_tum_sequence(tmp_path / "s", intrinsics="fr2")
+    cal = seq.pipeline_calibration
+    assert cal.sensor == "kinect" and cal.depth == cal.colour == TUM_INTRINSICS["fr2"]
+    np.testing.assert_array_equal(cal.T_colour_from_depth.matrix, np.eye(4))
+    assert (cal.depth_rate_hz, cal.colour_rate_hz) == (30.0, 30.0)
+
+
+def test_depth_scale_and_correction(written):
+    root, frames = written
+    base = read_tum_sequence(root).load(0).depth_m
+    png = cv2.imread(str(read_tum_sequence(root).frames[0].depth_path), cv2.IMREAD_UNCHANGED)
+    seq = read_tum_sequence(root, depth_scale=1000.0)
+    assert seq.depth_scale == 1000.0
+    np.testing.assert_array_equal(seq.load(0).depth_m, (png / 1000.0).astype(np.float32))
+    np.testing.assert_array_equal(base, (png / 5000.0).astype(np.float32))  # the default is unchanged
+    seq = read_tum_sequence(root, depth_correction=TUM_DEPTH_CORRECTION["fr1"])
+    np.testing.assert_allclose(seq.load(0).depth_m, png / 5000.0 * 1.035, rtol=1e-7)
+    assert np.array_equal(seq.load(0).known, frames[0].known)
+    for bad in (0.0, -5000.0, float("nan"), float("inf"), "5000", True):
+        with pytest.raises(RangeError, match="depth_scale"):
+            read_tum_sequence(root, depth_scale=bad)
+        with pytest.raises(RangeError, match="depth_correction"):
+            read_tum_sequence(root, depth_correction=bad)
+
+
+def test_another_trajectory_file_replaces_groundtruth(written, tmp_path):
+    """An estimated trajectory in TUM format, read by the same parser: its poses are used, its gaps
+    skip frames, and its errors name its own file."""
+    root, frames = written
+    est = tmp_path / "estimate.txt"
+    lines = ["# an estimate, offset by 1 m in x, covering the first three frames"]
+    for f in frames[:3]:
+        T = f.T_world_from_cam
+        ns = f.timestamp_ns
+        lines.append(f"{ns // 10**9}.{ns % 10**9:09d} " + " ".join(f"{x:.17g}" for x in (*(T.translation + [1.0, 0, 0]), *T.quaternion_xyzw())))
+    est.write_text("\n".join(lines) + "\n")
+    seq = read_tum_sequence(root, trajectory=est)
+    assert seq.trajectory == est and len(seq) == 3 and seq.skipped["no_pose"] == 2
+    for f, a in zip(frames, seq.frames):
+        np.testing.assert_allclose(a.T_world_from_cam.translation, f.T_world_from_cam.translation + [1.0, 0, 0], atol=1e-12)
+    (root / "groundtruth.txt").unlink()
+    assert len(read_tum_sequence(root, trajectory=est)) == 3  # groundtruth.txt is not needed then
+    with pytest.raises(LogFormatError, match="nope.txt: missing file"):
+        read_tum_sequence(root, trajectory=tmp_path / "nope.txt")
+    est.write_text(est.read_text() + "not a pose\n")
+    with pytest.raises(LogFormatError, match=r"estimate.txt, line 5: expected 8 fields"):
+        read_tum_sequence(root, trajectory=est)
+
+
+def test_trajectory_pose_lookup(tmp_path):
+    path = tmp_path / "t.txt"
+    path.write_text("# t tx ty tz qx qy qz qw\n1.0 0 0 0 0 0 0 1\n1.1 1 0 0 0 0 0 1\n")
+    track = TumTrajectory(path)
+    assert len(track) == 2 and track.timestamps_ns.tolist() == [10**9, 11 * 10**8]
+    T, dt = track.pose_at(1_040_000_000, 50_000_000)
+    assert dt == -40_000_000 and T.translation[0] == 0.0
+    T, dt = track.pose_at(1_040_000_000, 100_000_000, "linear")
+    assert dt == 0 and T.translation[0] == pytest.approx(0.4)
+    assert track.pose_at(1_300_000_000, 50_000_000) is None
+    with pytest.raises(UnknownMethodError):
+        track.pose_at(10**9, 0, "cubic")

@@ -98,12 +98,34 @@ def test_intrinsics_non_finite_raises(field, bad):
 
 @pytest.mark.parametrize("over", [
     {"width": 0}, {"height": 0}, {"width": -3}, {"width": 224.0}, {"height": True},
-    {"fx": 0.0}, {"fy": -1.0},
-], ids=["zero_width", "zero_height", "negative_width", "float_width", "bool_height", "zero_fx", "negative_fy"])
+    {"fx": 0.0}, {"fy": 0.0}, {"fy": -0.0},
+], ids=["zero_width", "zero_height", "negative_width", "float_width", "bool_height", "zero_fx", "zero_fy", "minus_zero_fy"])
 def test_intrinsics_out_of_range_raises(over):
     with pytest.raises(RangeError) as info:
         _intrinsics(**over)
     assert isinstance(info.value, ValueError)
+
+
+@pytest.mark.parametrize("fx_sign, fy_sign", [(1, -1), (-1, 1), (-1, -1)])
+def test_intrinsics_accept_signed_focal_lengths(fx_sign, fy_sign):
+    """ICL-NUIM publishes fy = −480 (POV-Ray's y-up camera frame): a signed focal length is kept as
+    given; what is a size in pixels (field of view, mean focal length) uses its magnitude."""
+    pos = Intrinsics(640, 480, 481.2, 480.0, 319.5, 239.5)
+    neg = Intrinsics(640, 480, fx_sign * 481.2, fy_sign * 480.0, 319.5, 239.5)
+    assert (neg.fx, neg.fy) == (fx_sign * 481.2, fy_sign * 480.0)
+    np.testing.assert_array_equal(neg.K, [[fx_sign * 481.2, 0, 319.5], [0, fy_sign * 480.0, 239.5], [0, 0, 1]])
+    assert neg.fov_deg == pos.fov_deg
+    assert neg.focal_px == pos.focal_px == 0.5 * (481.2 + 480.0)
+    half = neg.scaled(320, 240)
+    assert (half.fx, half.fy) == (fx_sign * 240.6, fy_sign * 240.0) and half.fov_deg == pytest.approx(pos.fov_deg)
+    assert Intrinsics.from_dict(json.loads(json.dumps(neg.to_dict()))) == neg
+
+
+def test_focal_px_is_the_plain_mean_for_positive_focal_lengths():
+    """The map update's footprint used 0.5 · (fx + fy): for positive focal lengths focal_px is that
+    number bit for bit, so the default session's map does not move."""
+    for fx, fy in ((180.0, 181.0), (525.0, 525.0), (517.3, 516.5), (1e-3, 7.1e5)):
+        assert Intrinsics(64, 48, fx, fy, 31.5, 23.5).focal_px == 0.5 * (fx + fy)
 
 
 def test_intrinsics_derived_values():
