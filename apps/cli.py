@@ -93,6 +93,10 @@ def build_parser() -> argparse.ArgumentParser:
         prog="rgbd-envmap",
         description="Simulated mobile RGB-D capture and real-time environment-map relighting.",
     )
+    from rgbd_envmap import __version__
+
+    parser.add_argument("--version", action="version", version=f"rgbd-envmap {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an error instead of one line")
     sub = parser.add_subparsers(dest="command", required=True)
     fmt = _HelpFormatter
     sim = sub.add_parser(
@@ -190,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
     from apps.process import configure_process
 
     configure_process()  # before numpy, OpenCV and the library load
-    from rgbd_envmap.errors import RgbdEnvmapError
+    from rgbd_envmap.errors import LogFormatError, RgbdEnvmapError
 
     args = build_parser().parse_args(argv)
     from apps.compile_once import install_from_env
@@ -243,9 +247,20 @@ def main(argv: list[str] | None = None) -> int:
 
             path = run_sweep(args.log, args.out, jobs=args.jobs, axes=args.axes, progress=not args.quiet)
             print(f"wrote {path}")
-    except RgbdEnvmapError as exc:
-        print(f"rgbd-envmap: error: {exc}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        print("rgbd-envmap: interrupted", file=sys.stderr)
+        return 130
+    except (RgbdEnvmapError, OSError) as exc:
+        if args.debug:
+            raise
+        # Unreadable or malformed data (a log, a dataset, a file) and the file system: exit 1. Anything
+        # else the project raises is about what was asked (options, settings): a usage error, exit 2.
+        data = isinstance(exc, (LogFormatError, OSError))
+        what = f"{exc.filename}: {exc.strerror}" if isinstance(exc, OSError) and exc.filename else str(exc)
+        print(f"rgbd-envmap: error: {' '.join(what.split())}", file=sys.stderr)
+        return 1 if data else 2
     return 0
 
 

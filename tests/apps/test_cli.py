@@ -79,5 +79,28 @@ def test_bad_colour_size_is_rejected_by_the_parser(capsys):
 
 
 def test_existing_session_is_not_overwritten_silently(recorded, capsys):
-    assert main(["simulate", "--duration", "0.2", "--out", str(recorded), "--colour-size", "96x64", "--quiet"]) == 2
+    assert main(["simulate", "--duration", "0.2", "--out", str(recorded), "--colour-size", "96x64", "--quiet"]) == 1
     assert "overwrite" in capsys.readouterr().err
+
+
+def test_exit_codes_one_line_errors_version_and_debug(tmp_path, capsys):
+    """Usage errors exit 2, data errors 1, each with one line on stderr and no traceback unless --debug."""
+    from apps.cli import main as cli_main
+    from rgbd_envmap import __version__
+    from rgbd_envmap.errors import LogFormatError
+
+    with pytest.raises(SystemExit) as info:
+        cli_main(["--version"])
+    assert info.value.code == 0 and __version__ in capsys.readouterr().out
+    # a setting out of range: usage
+    assert cli_main(["simulate", "--duration", "1", "--out", str(tmp_path / "a"), "--quiet",
+                     "--set", "capture.update.max_splat_px=-1"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "max_splat_px" in err and "Traceback" not in err
+    # a folder that is no recording: data
+    (tmp_path / "empty").mkdir()
+    assert cli_main(["replay", str(tmp_path / "empty"), "--out", str(tmp_path / "b"), "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    with pytest.raises(LogFormatError):
+        cli_main(["--debug", "replay", str(tmp_path / "empty"), "--out", str(tmp_path / "c"), "--quiet"])

@@ -123,7 +123,7 @@ def test_intrinsics_file_poses_file_and_depth_correction(tum, tmp_path):
     os.symlink(tum["root"], unnamed)
     assert replay(unnamed, tmp_path / "x", "--intrinsics", "default", "--tum-depth-correction") == 2
     cam.write_text('{"width": 640, "fx": 500}')
-    assert replay(tum["root"], tmp_path / "y", "--intrinsics", str(cam)) == 2
+    assert replay(tum["root"], tmp_path / "y", "--intrinsics", str(cam)) == 1  # a malformed file: data
     assert replay(tum["root"], tmp_path / "z", "--intrinsics", "fr9") == 2
 
 
@@ -132,7 +132,7 @@ def test_a_sequence_without_groundtruth_needs_poses(tum, tmp_path, capsys):
     seq.mkdir()
     for name in ("rgb", "depth", "rgb.txt", "depth.txt"):
         os.symlink(tum["root"] / name, seq / name)
-    assert replay(seq, tmp_path / "run") == 2
+    assert replay(seq, tmp_path / "run") == 1
     err = capsys.readouterr().err
     assert "groundtruth.txt: missing file" in err and "--poses FILE" in err
 
@@ -182,15 +182,15 @@ def test_icl_nuim_replays_with_its_signed_camera_and_matches_the_flipped_frames(
 def test_an_unknown_folder_fails_with_the_layouts_and_the_files_found(tmp_path, capsys):
     (tmp_path / "images").mkdir()
     (tmp_path / "poses.csv").write_text("t,x\n")
-    assert replay(tmp_path, tmp_path / "out") == 2
+    assert replay(tmp_path, tmp_path / "out") == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "calibration.json: missing file" not in err
     for layout in LAYOUTS:
         assert layout.name in err and layout.files in err
     assert "found images/, poses.csv" in err
-    assert replay(tmp_path / "nothing_here", tmp_path / "out") == 2
+    assert replay(tmp_path / "nothing_here", tmp_path / "out") == 1
     assert "not a folder" in capsys.readouterr().err
-    assert replay(tmp_path / "images", tmp_path / "out") == 2
+    assert replay(tmp_path / "images", tmp_path / "out") == 1
     assert "found nothing (empty folder)" in capsys.readouterr().err
 
 
