@@ -31,6 +31,7 @@ Index-level problems (missing files, unsorted timestamps, NaN poses) fail when t
 from __future__ import annotations
 
 import json
+import sys
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -317,6 +318,8 @@ def _replay_rgbd(opts: ReplayOptions, seq, source: str, info: dict) -> dict:
 def run_replay_session(opts: ReplayOptions) -> dict:
     """Replay a session log of this project packet by packet."""
     log = SessionLog.open(opts.log)
+    for warning in log.warnings:  # on the terminal now, in run.json at the end
+        print(f"rgbd-envmap: warning: {warning}", file=sys.stderr)
     origin = _check_origin(opts.origin) if opts.origin is not None else default_origin(log)
     skipped: Counter = Counter()
     skipped_files: list[str] = []
@@ -324,7 +327,7 @@ def run_replay_session(opts: ReplayOptions) -> dict:
     def packets():
         for kind, i, ns in log.entries():
             try:
-                packet = log.read_depth(i) if kind == "depth" else log.read_colour(i)
+                packet = log.read_depth(i, strict=opts.strict) if kind == "depth" else log.read_colour(i)
             except LogFormatError as exc:
                 if opts.strict:
                     raise
@@ -344,7 +347,8 @@ def run_replay_session(opts: ReplayOptions) -> dict:
             pipe, packets(), len(log),
             RunOptions(opts.out, composite_every=opts.composite_every, video=opts.video, progress=opts.progress, rerun=opts.rerun),
             groundtruth_envmap=lambda: _groundtruth_envmap(log),
-            extra=lambda: {"source": "replay", "log": str(opts.log), "skipped": dict(skipped), "skipped_files": skipped_files[:50]},
+            extra=lambda: {"source": "replay", "log": str(opts.log), "skipped": dict(skipped), "skipped_files": skipped_files[:50],
+                           "dropped_points": dict(log.dropped_points), "warnings": list(log.warnings)},
         )
     return summary
 

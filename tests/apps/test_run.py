@@ -188,3 +188,31 @@ def test_video_writer_encodes_every_frame_niced_and_pads_odd_sizes(tmp_path):
     means = [np.frombuffer(f, np.uint8).reshape(18, 32, 3)[:17, :31].mean() for f in frames]
     assert len(means) == 12
     np.testing.assert_allclose(means, 20 * np.arange(12), atol=3)
+
+
+def test_nan_points_are_dropped_and_counted_an_all_nan_packet_skipped_and_strict_stops(log_copy, tmp_path, capsys):
+    from rgbd_envmap.logs import SessionLog, _ply_bytes
+
+    log = SessionLog.open(log_copy)
+    plies = sorted((log_copy / "depth").glob("*.ply"))
+    some, every = plies[2], plies[4]
+    p = log.read_depth(2)
+    pts = p.points_m.copy()
+    pts[:7, 0] = np.nan
+    some.write_bytes(_ply_bytes(pts, p.confidence))
+    every.write_bytes(_ply_bytes(np.full((3, 3), np.nan, np.float32), np.ones(3, np.float32)))
+    out = tmp_path / "r"
+    assert main(["replay", str(log_copy), "--out", str(out), *SMALL[2:6]]) == 0
+    info = json.loads((out / "run.json").read_text())
+    assert info["dropped_points"] == {f"depth/{some.name}": 7}
+    assert info["skipped"].get("depth") == 1 and every.name in " ".join(info["skipped_files"])
+    assert main(["replay", str(log_copy), "--out", str(tmp_path / "s"), "--strict", *SMALL[2:6]]) == 1
+    assert some.name in capsys.readouterr().err  # the first file with a NaN point stops a strict run
+
+
+def test_an_empty_index_is_a_warning_on_the_terminal_and_in_run_json(log_copy, tmp_path, capsys):
+    text = (log_copy / "depth.txt").read_text().splitlines(keepends=True)
+    (log_copy / "depth.txt").write_text("".join(line for line in text if line.startswith("#")))
+    out = tmp_path / "r"
+    main(["replay", str(log_copy), "--out", str(out), *SMALL[2:6]])
+    assert "warning" in capsys.readouterr().err and "empty index" in (out / "run.json").read_text()
