@@ -122,7 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--no-auto-white-balance", action="store_true", help="hold the white-balance gains at 1")
     sim.add_argument("--preview-envmap-height", type=int, default=500, metavar="PIXELS",
                      help="height of the ground-truth environment map preview (width = 2 × height)")
-    sim.add_argument("--overwrite", action="store_true", help="replace an existing session in OUT")
+    sim.add_argument("--overwrite", action="store_true",
+                     help="replace an existing OUT, once the new run is complete (without it a non-empty OUT is refused)")
     sim.add_argument("--quiet", action="store_true", help="no progress bar")
     sim.add_argument("--record-only", action="store_true", help="record the session without running the pipeline")
     sim.add_argument("--device", choices=("tango", "kinect", "phone"), default="tango",
@@ -146,6 +147,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--origin", type=_xyz, nargs=3, default=None, metavar=("X", "Y", "Z"),
                      help="EM origin in world metres (default: the log's true-map origin, else 1 m in front of the first camera)")
     rep.add_argument("--strict", action="store_true", help="stop at the first unreadable packet instead of skipping it")
+    rep.add_argument("--overwrite", action="store_true",
+                     help="replace an existing OUT, once the new run is complete (without it a non-empty OUT is refused)")
     rep.add_argument("--quiet", action="store_true", help="no progress bar")
     seq = rep.add_argument_group(
         "RGB-D sequences (TUM RGB-D, ICL-NUIM)",
@@ -200,23 +203,28 @@ def main(argv: list[str] | None = None) -> int:
     from apps.compile_once import install_from_env
 
     install_from_env()  # a first run's warm-up beside this process: compile each kernel once (scripts/main.sh)
+    from apps.run_folder import staged_run
+
     try:
         if args.command == "simulate":
             colour_size = args.colour_size or ((960, 720) if args.device == "phone" else (960, 540))
             from apps.simulate import SimulateOptions, run_simulate
 
-            summary = run_simulate(SimulateOptions(
-                duration_s=args.duration, out=args.out, scene=args.scene, trajectory=args.trajectory, seed=args.seed,
-                colour_width=colour_size[0], colour_height=colour_size[1],
-                tracking_noise_m=args.tracking_noise_m, tracking_noise_deg=args.tracking_noise_deg,
-                auto_exposure=not args.no_auto_exposure, auto_white_balance=not args.no_auto_white_balance,
-                preview_envmap_height=args.preview_envmap_height, overwrite=args.overwrite, progress=not args.quiet,
-                pipeline=not args.record_only, config=_pipeline_config(args), composite_every=args.composite_every,
-                video=not args.no_video, rerun=args.rerun, cache_dir=args.cache_dir, device=args.device,
-            ))
+            config = _pipeline_config(args)  # usage errors before anything is written
+
+            with staged_run(args.out, overwrite=args.overwrite) as partial:
+                summary = run_simulate(SimulateOptions(
+                    duration_s=args.duration, out=partial, scene=args.scene, trajectory=args.trajectory, seed=args.seed,
+                    colour_width=colour_size[0], colour_height=colour_size[1],
+                    tracking_noise_m=args.tracking_noise_m, tracking_noise_deg=args.tracking_noise_deg,
+                    auto_exposure=not args.no_auto_exposure, auto_white_balance=not args.no_auto_white_balance,
+                    preview_envmap_height=args.preview_envmap_height, overwrite=True, progress=not args.quiet,
+                    pipeline=not args.record_only, config=config, composite_every=args.composite_every,
+                    video=not args.no_video, rerun=args.rerun, cache_dir=args.cache_dir, device=args.device,
+                ))
             print(
                 f"recorded {summary['depth_packets']} depth and {summary['colour_packets']} colour packets "
-                f"in {summary['wall_s']:.1f} s → {summary['session']}"
+                f"in {summary['wall_s']:.1f} s → {args.out / 'session'}"
             )
             if summary["pipeline"]:
                 print(f"report: {args.out / 'timing.md'}\ncomposites: {args.out / 'composites'}/"
@@ -224,12 +232,17 @@ def main(argv: list[str] | None = None) -> int:
         elif args.command == "replay":
             from apps.replay import ReplayOptions, run_replay
 
-            summary = run_replay(ReplayOptions(
-                log=args.log, out=args.out, origin=tuple(args.origin) if args.origin else None, config=_pipeline_config(args),
-                composite_every=args.composite_every, video=not args.no_video, progress=not args.quiet, strict=args.strict,
-                rerun=args.rerun, cache_dir=args.cache_dir, intrinsics=args.intrinsics, depth_scale=args.depth_scale,
-                poses=args.poses, tum_depth_correction=args.tum_depth_correction,
-            ))
+            config = _pipeline_config(args)  # usage errors before anything is written
+            from apps.replay import detect_layout
+
+            detect_layout(args.log)  # and a folder replay cannot read
+            with staged_run(args.out, overwrite=args.overwrite) as partial:
+                summary = run_replay(ReplayOptions(
+                    log=args.log, out=partial, origin=tuple(args.origin) if args.origin else None, config=config,
+                    composite_every=args.composite_every, video=not args.no_video, progress=not args.quiet,
+                    strict=args.strict, rerun=args.rerun, cache_dir=args.cache_dir, intrinsics=args.intrinsics,
+                    depth_scale=args.depth_scale, poses=args.poses, tum_depth_correction=args.tum_depth_correction,
+                ))
             skipped = summary.get("skipped") or {}
             print(f"replayed {summary['depth_packets']} depth and {summary['colour_packets']} colour packets"
                   + (f" (skipped unreadable: {skipped})" if skipped else "") + f" → {args.out / 'timing.md'}")
@@ -247,11 +260,16 @@ def main(argv: list[str] | None = None) -> int:
 
             path = run_sweep(args.log, args.out, jobs=args.jobs, axes=args.axes, progress=not args.quiet)
             print(f"wrote {path}")
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         if args.debug:
             raise
-        print("rgbd-envmap: interrupted", file=sys.stderr)
-        return 130
+        from apps.run_folder import Terminated, partial_path
+
+        where = ""
+        if getattr(args, "out", None) is not None and partial_path(args.out).exists():
+            where = f"; the partial run is in {partial_path(args.out)} (its run.json says what it holds)"
+        print(f"rgbd-envmap: interrupted{where}", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
     except (RgbdEnvmapError, OSError) as exc:
         if args.debug:
             raise
