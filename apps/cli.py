@@ -137,12 +137,13 @@ def build_parser() -> argparse.ArgumentParser:
         "replay", formatter_class=fmt, help="run the pipeline on a recorded session log or RGB-D sequence",
         description="Replay a recording through the pipeline, with any settings: a session log (as written by "
         "simulate), a TUM RGB-D sequence (as the benchmark ships it: rgb.txt, depth.txt, groundtruth.txt, rgb/, "
-        "depth/) or an ICL-NUIM sequence in its TUM-compatible layout (associations.txt, *.gt.freiburg, rgb/, "
-        "depth/); the layout is recognised by its files. Writes the same run folder as simulate (without "
+        "depth/), an ICL-NUIM sequence in its TUM-compatible layout (associations.txt, *.gt.freiburg, rgb/, "
+        "depth/) or a phone LiDAR capture in the Stray Scanner layout (rgb.mp4, depth/, confidence/, "
+        "camera_matrix.csv, odometry.csv); the layout is recognised by its files. Writes the same run folder as simulate (without "
         "session/ and preview/). Unreadable packets are skipped and counted in run.json, or end the run with --strict.",
     )
     rep.add_argument("log", type=Path, metavar="LOG",
-                     help="the recording's folder: session log, TUM RGB-D or ICL-NUIM sequence")
+                     help="the recording's folder: session log, TUM RGB-D or ICL-NUIM sequence, phone capture")
     rep.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     rep.add_argument("--origin", type=_xyz, nargs=3, default=None, metavar=("X", "Y", "Z"),
                      help="EM origin in world metres (default: the log's true-map origin, else 1 m in front of the first camera)")
