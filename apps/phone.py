@@ -33,6 +33,7 @@ from apps.progress import bar_disable
 from apps.run import RunOptions, run_pipeline
 from rgbd_envmap.errors import InvalidInputError, LogFormatError
 from rgbd_envmap.pipeline import Pipeline
+from rgbd_envmap.sources.frames import read_truth
 from rgbd_envmap.sources.stray import CONFIDENCE_VALUES, is_stray_capture, read_stray_capture
 
 if TYPE_CHECKING:  # imported where used: apps.replay may import this module for its table of layouts
@@ -51,11 +52,10 @@ def is_phone_capture(path: Path) -> bool:
 
 
 def _load_npz(path: Path) -> dict:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise LogFormatError(f"{path}: unreadable NPZ ({exc})") from None
+    arrays = read_truth(path)
+    if arrays is None:
+        raise LogFormatError(f"{path}: missing file")
+    return arrays
 
 
 def _check_origin(origin) -> np.ndarray:

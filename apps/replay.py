@@ -44,6 +44,7 @@ from apps.run import RunOptions, run_pipeline
 from rgbd_envmap.errors import InvalidInputError, LogFormatError, RgbdEnvmapError
 from rgbd_envmap.logs import SessionLog
 from rgbd_envmap.pipeline import Pipeline, PipelineConfig
+from rgbd_envmap.sources.frames import read_truth
 
 __all__ = ["ReplayOptions", "Layout", "LAYOUTS", "INTRINSICS_PRESETS", "detect_layout", "run_replay", "run_replay_tum",
            "run_replay_icl", "run_replay_session", "default_origin", "is_tum_sequence", "is_session_log"]
@@ -94,14 +95,7 @@ class Layout:
 
 
 def _groundtruth_envmap(log: SessionLog) -> dict | None:
-    path = log.root / "groundtruth" / "envmap.npz"
-    if not path.is_file():
-        return None
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            return {k: npz[k] for k in npz.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise LogFormatError(f"{path}: unreadable NPZ ({exc})") from None
+    return read_truth(log.root / "groundtruth" / "envmap.npz")
 
 
 def default_origin(log: SessionLog) -> np.ndarray:

@@ -172,8 +172,8 @@ def run_pipeline(
     depth_gt: dict[int, dict] = {}
     wall0 = time.perf_counter()
     # Garbage collection between packets, as a real-time loop schedules it, not inside a timed
-    # stage, where collections over the renderer's and the simulator's objects landed at random:
-    # depth_frame_total median 13.1 → 12.3 ms on the default session (replays, two each, alternated).
+    # stage, where collections over the renderer's and the simulator's objects would land at random
+    # and inflate whichever stage they hit.
     gc_was_enabled = gc.isenabled()
     gc.collect()
     gc.freeze()  # what exists now (models, scene, kernels) is never garbage: leave it out of collections
