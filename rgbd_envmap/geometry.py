@@ -25,7 +25,7 @@ import numba
 import numpy as np
 
 from rgbd_envmap.checks import check_array, check_positive_int
-from rgbd_envmap.errors import InvalidInputError
+from rgbd_envmap.errors import InvalidInputError, RangeError
 from rgbd_envmap.types import Distortion, Intrinsics, RigidTransform
 
 __all__ = [
@@ -174,9 +174,16 @@ def opengl_from_opencv(T_world_from_cam: RigidTransform) -> RigidTransform:
     return RigidTransform(T_world_from_cam.matrix @ _CV_TO_GL, T_world_from_cam.dst, "cam_gl")
 
 
+#: the most pixels an equirect table is made for (8192 × 4096, the largest map the library makes).
+MAX_EQUIRECT_PIXELS = 8192 * 4096
+
+
 def _check_equirect_size(height: int, width: int) -> tuple[int, int]:
     height = check_positive_int(height, "height")
     width = check_positive_int(width, "width")
+    if height * width > MAX_EQUIRECT_PIXELS:
+        raise RangeError(f"height × width: {height}×{width} directions would take about "
+                         f"{height * width * 12 / 2**30:.1f} GiB; at most {MAX_EQUIRECT_PIXELS:,} pixels (e.g. 8192×4096)")
     return height, width
 
 
