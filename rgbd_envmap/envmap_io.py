@@ -211,6 +211,19 @@ def _rle_scanlines(planes: np.ndarray) -> bytes:
     return out.tobytes()
 
 
+def _map_to_write(radiance: np.ndarray, valid: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The checked (H, W, 3) radiance of a map file to write and the (H, W) pixels it keeps: finite,
+    and valid where ``valid`` is given."""
+    rad = check_array(radiance, "radiance", shape=("H", "W", 3), dtype=("float", "int"))
+    H, W = rad.shape[:2]
+    if H == 0 or W == 0:
+        raise InvalidInputError(f"radiance: expected a non-empty map, got {H}×{W} pixels")
+    keep = np.isfinite(rad).all(axis=2)
+    if valid is not None:
+        keep &= check_array(valid, "valid", shape=(H, W), dtype="bool")
+    return rad, keep
+
+
 def write_hdr(path: str | Path, radiance: np.ndarray, valid: np.ndarray | None = None, *,
               convention: str = "ours", origin: np.ndarray | None = None) -> Path:
     """Write (H, W, 3) linear ``radiance`` as a Radiance RGBE file (run-length encoded).
@@ -227,16 +240,10 @@ def write_hdr(path: str | Path, radiance: np.ndarray, valid: np.ndarray | None =
         ``path`` as a Path.
     """
     check_method(convention, CONVENTIONS, "convention")
-    rad = check_array(radiance, "radiance", shape=("H", "W", 3), dtype=("float", "int"))
-    H, W = rad.shape[:2]
-    if H == 0 or W == 0:
-        raise InvalidInputError(f"radiance: expected a non-empty map, got {H}×{W} pixels")
-    if valid is not None:
-        valid = check_array(valid, "valid", shape=(H, W), dtype="bool")
+    rad, keep = _map_to_write(radiance, valid)
     rad = np.asarray(rad, np.float32)
-    keep = np.isfinite(rad).all(axis=2)
-    if valid is not None:
-        keep &= valid
+    keep &= np.isfinite(rad).all(axis=2)  # float64 beyond float32's range is inf now
+    H, W = rad.shape[:2]
     rgbe = _rgbe(np.where(keep[..., None], rad, np.float32(0)))
     lines = ["#?RADIANCE", "SOFTWARE=rgbd-envmap", f"{_HDR_CONVENTION}={convention}"]
     if origin is not None:
@@ -339,13 +346,8 @@ def write_exr(path: str | Path, radiance: np.ndarray, valid: np.ndarray | None =
     import OpenEXR
 
     check_method(convention, CONVENTIONS, "convention")
-    rad = check_array(radiance, "radiance", shape=("H", "W", 3), dtype=("float", "int"))
+    rad, ok = _map_to_write(radiance, valid)
     H, W = rad.shape[:2]
-    if H == 0 or W == 0:
-        raise InvalidInputError(f"radiance: expected a non-empty map, got {H}×{W} pixels")
-    ok = np.isfinite(rad).all(axis=2)
-    if valid is not None:
-        ok &= check_array(valid, "valid", shape=(H, W), dtype="bool")
     if depth_m is not None:
         depth = check_array(depth_m, "depth_m", shape=(H, W), dtype=("float", "int"))
         ok &= np.isfinite(depth)

@@ -35,10 +35,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
-from rgbd_envmap.checks import check_method
-from rgbd_envmap.errors import InvalidInputError, LogFormatError, RangeError
+from rgbd_envmap.checks import check_method, check_number
+from rgbd_envmap.errors import InvalidInputError, LogFormatError
 from rgbd_envmap.logs import parse_timestamp, read_timestamped_table
 from rgbd_envmap.tum import TUM_DEPTH_SCALE, TumAssociation, TumSequence, TumTrajectory
 from rgbd_envmap.types import Intrinsics
@@ -134,9 +132,7 @@ def read_icl_nuim_sequence(path: str | Path, *, max_dt_s: float = 0.02, poses: s
     root = Path(path)
     if not root.is_dir():
         raise LogFormatError(f"{root}: not a directory (expected an ICL-NUIM sequence)")
-    max_dt_s = float(max_dt_s)
-    if not np.isfinite(max_dt_s) or max_dt_s < 0:
-        raise RangeError(f"max_dt_s: expected a finite value >= 0, got {max_dt_s}")
+    max_dt_s = check_number(max_dt_s, "max_dt_s", low=0.0)
     check_method(poses, _POSE_METHODS, "poses")
     if intrinsics is None:
         intrinsics, source = ICL_NUIM_INTRINSICS, ("icl-nuim", "the ICL-NUIM layout (associations.txt, *.gt.freiburg)")

@@ -64,7 +64,6 @@ References:
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 import shutil
@@ -77,7 +76,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from rgbd_envmap.checks import check_array, check_method
+from rgbd_envmap.checks import check_array, check_method, check_number
 from rgbd_envmap.errors import (
     InvalidInputError,
     LogFormatError,
@@ -225,8 +224,8 @@ class TumSequence:
         self.root, self.intrinsics, self.calibration = root, intrinsics, calibration
         self.frames, self.skipped, self.max_dt_s, self.poses = frames, skipped, max_dt_s, poses
         self.intrinsics_source = intrinsics_source
-        self.depth_scale = _positive_number(depth_scale, "depth_scale")
-        self.depth_correction = _positive_number(depth_correction, "depth_correction")
+        self.depth_scale = check_number(depth_scale, "depth_scale", low=0.0, low_open=True)
+        self.depth_correction = check_number(depth_correction, "depth_correction", low=0.0, low_open=True)
         self.trajectory = trajectory if trajectory is not None else Path(root) / "groundtruth.txt"
         self.index_names = index_names
 
@@ -310,17 +309,6 @@ def _read_images(root: Path, name: str) -> list[tuple[int, int, Path]]:
             raise LogFormatError(f"{path}, line {lineno}: image path must be relative to the sequence, got {rel!r}")
         out.append((lineno, ns, root / rel))
     return out
-
-
-def _positive_number(value: object, name: str) -> float:
-    """``value`` as a float, raising :class:`RangeError` unless it is a finite number > 0 (a depth
-    scale in units per metre, or a correction factor)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise RangeError(f"{name}: expected a finite number > 0, got {value!r}")
-    v = float(value)
-    if not (math.isfinite(v) and v > 0.0):
-        raise RangeError(f"{name}: expected a finite number > 0, got {value!r}")
-    return v
 
 
 def _read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -448,12 +436,10 @@ def read_tum_sequence(path: str | Path, *, max_dt_s: float = 0.02, poses: str = 
     root = Path(path)
     if not root.is_dir():
         raise LogFormatError(f"{root}: not a directory (expected a TUM RGB-D sequence)")
-    max_dt_s = float(max_dt_s)
-    if not np.isfinite(max_dt_s) or max_dt_s < 0:
-        raise RangeError(f"max_dt_s: expected a finite value >= 0, got {max_dt_s}")
+    max_dt_s = check_number(max_dt_s, "max_dt_s", low=0.0)
     check_method(poses, _POSE_METHODS, "poses")
-    depth_scale = _positive_number(depth_scale, "depth_scale")
-    depth_correction = _positive_number(depth_correction, "depth_correction")
+    depth_scale = check_number(depth_scale, "depth_scale", low=0.0, low_open=True)
+    depth_correction = check_number(depth_correction, "depth_correction", low=0.0, low_open=True)
     calibration = None
     if intrinsics is None or intrinsics == "auto":
         auto = intrinsics == "auto"

@@ -566,9 +566,9 @@ def test_depth_scale_and_correction(written):
     np.testing.assert_allclose(seq.load(0).depth_m, png / 5000.0 * 1.035, rtol=1e-7)
     assert np.array_equal(seq.load(0).known, frames[0].known)
     for bad in (0.0, -5000.0, float("nan"), float("inf"), "5000", True):
-        with pytest.raises(RangeError, match="depth_scale"):
+        with pytest.raises((RangeError, DTypeError), match="depth_scale"):
             read_tum_sequence(root, depth_scale=bad)
-        with pytest.raises(RangeError, match="depth_correction"):
+        with pytest.raises((RangeError, DTypeError), match="depth_correction"):
             read_tum_sequence(root, depth_correction=bad)
 
 
