@@ -9,8 +9,10 @@ VENV="$ROOT/.venv"
 LOG="$ROOT/.venv-bootstrap.log"
 
 # libusb: open3d imports only with it; EGL/GL: pyrender's offscreen context (Mesa); libgomp: numba/open3d;
-# libcgal-demo: ships the Stanford bunny (data/meshes/bunny00.off), the default virtual object.
-apt_packages=(libusb-1.0-0 libegl1 libgl1 libgomp1 libcgal-demo)
+# libcgal-demo: ships the Stanford bunny (data/meshes/bunny00.off), the default virtual object;
+# libllvm19: Mitsuba's vectorised llvm_ad_rgb variant (drjit loads libLLVM-19.so), used for the lit
+# world's bake and reference frames.
+apt_packages=(libusb-1.0-0 libegl1 libgl1 libgomp1 libcgal-demo libllvm19)
 missing=()
 for p in "${apt_packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
