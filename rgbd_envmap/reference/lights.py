@@ -1,0 +1,192 @@
+"""Readable references of the light samplers' cores (:mod:`rgbd_envmap.lights`), used by the tests,
+and the test scene they are run on.
+
+Each function recomputes from scratch, in float64, without the library's tables, kernels or
+shortcuts: pixel directions and solid angles from the equirect formulas of
+docs/reference/conventions.md, HEALPix cells per level from ``healpy.vec2pix`` (not from a pyramid),
+and the Q2-Tree grown one split at a time as Algorithm 1 of paper 002 writes it.
+"""
+
+from __future__ import annotations
+
+import heapq
+
+import numpy as np
+
+__all__ = ["pixel_directions", "pixel_solid_angles", "map_integral", "brute_force_irradiance", "luminance_cdf",
+           "cell_sums", "pharr", "q2tree", "room_map", "LUMINANCE"]
+
+#: Rec. 709 luminance weights.
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+
+def pixel_directions(height: int, width: int) -> np.ndarray:
+    """(H, W, 3) float64 unit directions of the pixel centres."""
+    theta = np.pi * (np.arange(height) + 0.5) / height
+    phi = 2.0 * np.pi * (np.arange(width) + 0.5) / width - np.pi
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+
+
+def pixel_solid_angles(height: int, width: int) -> np.ndarray:
+    """(H, W) float64 exact pixel solid angles (2π / W)(cos θ_top − cos θ_bottom)."""
+    edges = np.cos(np.pi * np.arange(height + 1) / height)
+    return np.repeat(((2.0 * np.pi / width) * (edges[:-1] - edges[1:]))[:, None], width, axis=1)
+
+
+def _masked(radiance, valid):
+    rad = np.asarray(radiance, np.float64)
+    if valid is None:
+        return rad
+    return np.where(np.asarray(valid)[..., None], rad, 0.0)
+
+
+def map_integral(radiance, valid=None) -> np.ndarray:
+    """(3,) Σ over valid pixels of L · Ω."""
+    rad = _masked(radiance, valid)
+    om = pixel_solid_angles(*rad.shape[:2])
+    return np.sum(rad * om[..., None], axis=(0, 1))
+
+
+def brute_force_irradiance(radiance, normals, valid=None) -> np.ndarray:
+    """(m, 3) E(n) = Σ_p L_p Ω_p max(0, n · d_p): the clamped-cosine convolution of the map at each
+    of the (m, 3) unit normals, over every pixel."""
+    rad = _masked(radiance, valid)
+    H, W = rad.shape[:2]
+    d = pixel_directions(H, W).reshape(-1, 3)
+    lw = (rad * pixel_solid_angles(H, W)[..., None]).reshape(-1, 3)
+    out = np.zeros((len(normals), 3))
+    for s in range(0, len(normals), 16):
+        cos = np.maximum(np.asarray(normals[s:s + 16], np.float64) @ d.T, 0.0)
+        out[s:s + 16] = cos @ lw
+    return out
+
+
+def luminance_cdf(radiance, valid=None) -> np.ndarray:
+    """(H·W,) the running sum of Y · Ω in row-major order (invalid pixels add 0)."""
+    rad = _masked(radiance, valid)
+    y = rad @ LUMINANCE
+    return np.cumsum((y * pixel_solid_angles(*rad.shape[:2])).ravel())
+
+
+def cell_sums(radiance, valid, cell, ncells, depth=None) -> np.ndarray:
+    """(ncells, 3) Σ L · Ω per cell (``cell`` (H, W) int), or with depth (ncells, 6): also
+    Σ Y·Ω·depth, Σ Ω·depth, Σ Ω over valid pixels."""
+    rad = _masked(radiance, valid)
+    H, W = rad.shape[:2]
+    om = pixel_solid_angles(H, W)
+    ok = np.ones((H, W)) if valid is None else np.asarray(valid, np.float64)
+    c = np.asarray(cell).ravel()
+    cols = [np.bincount(c, (rad[..., k] * om).ravel(), ncells) for k in range(3)]
+    if depth is not None:
+        dep = np.where(ok > 0, np.asarray(depth, np.float64), 0.0)
+        y = rad @ LUMINANCE
+        cols += [np.bincount(c, (y * om * dep).ravel(), ncells), np.bincount(c, (om * dep).ravel(), ncells),
+                 np.bincount(c, (om * ok).ravel(), ncells)]
+    return np.stack(cols, axis=1)
+
+
+def _radical_inverse(i: int, base: int) -> float:
+    out, f = 0.0, 1.0 / base
+    while i > 0:
+        out += f * (i % base)
+        i //= base
+        f /= base
+    return out
+
+
+def pharr(radiance, n, valid=None) -> tuple[np.ndarray, np.ndarray]:
+    """(directions (n, 3), power (n, 3)): Halton points 1 … n (bases 2, 3) inverted through the
+    marginal CDF over rows and the conditional CDF within the row of Y · Ω, one point at a time,
+    with continuous offsets inside the pixel; power = L / Y · Σ Y·Ω / n. Map with energy only."""
+    rad = _masked(radiance, valid)
+    H, W = rad.shape[:2]
+    w = (rad @ LUMINANCE) * pixel_solid_angles(H, W)
+    row_tot = w.sum(axis=1)
+    total = row_tot.sum()
+    marginal = np.cumsum(row_tot)
+    dirs, power = [], []
+    for i in range(1, n + 1):
+        u1, u2 = _radical_inverse(i, 2), _radical_inverse(i, 3)
+        x1 = u1 * total
+        v = int(np.searchsorted(marginal, x1, side="right"))
+        lo = marginal[v - 1] if v else 0.0
+        fv = (x1 - lo) / row_tot[v]
+        cond = np.cumsum(w[v])
+        x2 = u2 * row_tot[v]
+        u = int(np.searchsorted(cond, x2, side="right"))
+        lo2 = cond[u - 1] if u else 0.0
+        fu = (x2 - lo2) / w[v, u]
+        theta = np.pi * (v + fv) / H
+        phi = 2.0 * np.pi * (u + fu) / W - np.pi
+        dirs.append([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+        L = rad[v, u]
+        power.append(L / (L @ LUMINANCE) * total / n)
+    return np.array(dirs), np.array(power)
+
+
+def q2tree(radiance, n, level, valid=None, a=1.0, b=0.25) -> dict:
+    """Algorithm 1 of paper 002 one split at a time: {(level, index): (3,) power} of the leaves.
+
+    Quads' powers at each level l ≤ ``level`` come from ``healpy.vec2pix`` at nside 2^l on the pixel
+    centres (each pixel wholly in the quad holding its centre). The leaf of highest importance
+    Y^a · (π / (3·4^l))^b (ties: lower level, then lower index) is split until there are ≥ n leaves;
+    quads at ``level`` are not split."""
+    import healpy
+
+    rad = _masked(radiance, valid)
+    H, W = rad.shape[:2]
+    d = pixel_directions(H, W).reshape(-1, 3)
+    lw = (rad * pixel_solid_angles(H, W)[..., None]).reshape(-1, 3)
+    sums = []
+    for lvl in range(level + 1):
+        pix = healpy.vec2pix(2 ** lvl, d[:, 0], d[:, 1], d[:, 2], nest=True)
+        sums.append(np.stack([np.bincount(pix, lw[:, k], 12 * 4 ** lvl) for k in range(3)], axis=1))
+
+    def importance(lvl, p):
+        return float(sums[lvl][p] @ LUMINANCE) ** a * (np.pi / (3 * 4 ** lvl)) ** b
+
+    heap = [(-importance(0, p), 0, p) for p in range(12)]
+    heapq.heapify(heap)
+    finest = []
+    count = 12
+    while count < n and heap:
+        _, lvl, p = heapq.heappop(heap)
+        for c in range(4):
+            child = (lvl + 1, 4 * p + c)
+            if child[0] < level:
+                heapq.heappush(heap, (-importance(*child), *child))
+            else:
+                finest.append(child)
+        count += 3
+    leaves = [(lvl, p) for _, lvl, p in heap] + finest
+    return {leaf: sums[leaf[0]][leaf[1]] for leaf in leaves}
+
+
+def room_map(height: int = 128, width: int = 256, lamp: float = 200.0, seed: int = 0
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A test scene: the equirect map seen from (0, 0, 1) in a 4 × 5 × 2.9 m room (floor z = 0,
+    ceiling z = 2.9): dim textured walls, a brown floor, a bright window (x = 2 wall, 1.6 × 1.2 m) and
+    a small warm ceiling lamp (radius 0.15 m at (0.4, −0.3, 2.9), 1.9 m above the origin).
+
+    Returns (radiance (H, W, 3) float32, depth_m (H, W) float32 Euclidean distances, origin (3,))."""
+    rng = np.random.default_rng(seed)
+    origin = np.array([0.0, 0.0, 1.0])
+    d = pixel_directions(height, width)
+    lo = np.array([-2.0, -2.5, 0.0]) - origin
+    hi = np.array([2.0, 2.5, 2.9]) - origin
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_axis = np.where(d > 0, hi / d, np.where(d < 0, lo / d, np.inf))
+    t = t_axis.min(axis=-1)
+    axis = t_axis.argmin(axis=-1)
+    p = origin + d * t[..., None]
+    rad = np.empty((height, width, 3))
+    base = 0.08 + 0.04 * np.sin(3 * p[..., 0]) * np.cos(2 * p[..., 1]) + 0.01 * rng.random((height, width))
+    rad[:] = base[..., None] * np.array([1.0, 0.95, 0.85])
+    floor = (axis == 2) & (d[..., 2] < 0)
+    rad[floor] = np.array([0.12, 0.08, 0.05]) * (1 + 0.1 * rng.random((floor.sum(), 1)))
+    window = (axis == 0) & (d[..., 0] > 0) & (np.abs(p[..., 1]) < 0.8) & (p[..., 2] > 0.9) & (p[..., 2] < 2.1)
+    rad[window] = np.array([2.5, 2.8, 3.2])
+    lamp_px = (axis == 2) & (d[..., 2] > 0) & (np.hypot(p[..., 0] - 0.4, p[..., 1] + 0.3) < 0.15)
+    rad[lamp_px] = lamp * np.array([1.0, 0.85, 0.6])
+    return rad.astype(np.float32), t.astype(np.float32), origin

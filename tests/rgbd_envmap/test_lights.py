@@ -1,0 +1,506 @@
+"""Tests of rgbd_envmap.lights: the samplers against their references, the power and irradiance they
+stand for, the Q2-Tree's quads, incremental updates and merges, the hard cases and the errors."""
+
+from __future__ import annotations
+
+import healpy
+import numpy as np
+import pytest
+
+from rgbd_envmap._kernels import lights_q2tree
+from rgbd_envmap.errors import (DTypeError, InvalidInputError, NonFiniteError, RangeError, RgbdEnvmapError,
+                                ShapeError, UnknownMethodError)
+from rgbd_envmap.geometry import equirect_pixel_index
+from rgbd_envmap.lights import (METHODS, HemigonState, LightSet, Q2TreeState, irradiance, map_integral,
+                                merge_lights, sample_lights, split_direct_indirect)
+from rgbd_envmap.lights import cells as cells_mod
+from rgbd_envmap.lights import q2tree as q2
+from rgbd_envmap.lights.hemisphere import hemisphere_to_square, square_to_hemisphere
+from rgbd_envmap.lights.maps import check_inputs
+from rgbd_envmap.reference import lights as ref
+
+ALL = sorted(METHODS)
+
+
+@pytest.fixture(scope="module")
+def room():
+    return ref.room_map(64, 128)
+
+
+@pytest.fixture(scope="module")
+def room_big():
+    return ref.room_map(128, 256)
+
+
+def fibonacci_normals(m: int = 64) -> np.ndarray:
+    k = np.arange(m) + 0.5
+    z = 1 - 2 * k / m
+    ph = np.pi * (1 + 5 ** 0.5) * k
+    return np.stack([np.sqrt(1 - z * z) * np.cos(ph), np.sqrt(1 - z * z) * np.sin(ph), z], 1)
+
+
+def leaves(lights: LightSet) -> dict:
+    return {tuple(c): p for c, p in zip(lights.cells.tolist(), lights.power)}
+
+
+# --- the result -----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("method", ALL)
+def test_result_shapes_units_and_frozen(room, method):
+    rad, _, _ = room
+    lights = sample_lights(rad, 200, method)
+    n = len(lights)
+    assert n == (201 if method == "q2tree" else 200)
+    assert lights.directions.shape == (n, 3) and lights.directions.dtype == np.float64
+    assert lights.power.shape == (n, 3) and lights.power.dtype == np.float64
+    np.testing.assert_allclose(np.linalg.norm(lights.directions, axis=1), 1.0, atol=1e-12)
+    assert (lights.power >= 0).all()
+    assert lights.method == method
+    assert (lights.solid_angle is not None) == (method == "q2tree")
+    assert lights.positions is None and lights.origin is None
+    with pytest.raises(ValueError):
+        lights.power[0, 0] = 1.0
+
+
+def test_lightset_validates():
+    d = np.array([[0.0, 0.0, 1.0]])
+    with pytest.raises(InvalidInputError):
+        LightSet(np.array([[0.0, 0.0, 2.0]]), np.ones((1, 3)), "x")
+    with pytest.raises(InvalidInputError):
+        LightSet(d, -np.ones((1, 3)), "x")
+    with pytest.raises(ShapeError):
+        LightSet(d, np.ones((2, 3)), "x")
+    with pytest.raises(InvalidInputError):
+        LightSet(d, np.ones((1, 3)), "x", positions=np.zeros((1, 3)))  # positions without origin
+    with pytest.raises(InvalidInputError):
+        LightSet(d, np.ones((1, 3)), "x", cells=np.array([[0, 12]]))  # level 0 has 12 quads
+
+
+# --- errors and the dispatcher --------------------------------------------------------------------
+
+def test_unknown_method_lists_the_valid_ones(room):
+    with pytest.raises(UnknownMethodError, match="hemigon.*q2tree|pharr"):
+        sample_lights(room[0], 10, "median_cut")
+
+
+@pytest.mark.parametrize("n, err", [(0, RangeError), (-3, RangeError), (True, DTypeError), (2.5, DTypeError),
+                                    (10 ** 7, RangeError)])
+def test_bad_light_counts(room, n, err):
+    with pytest.raises(err, match="n"):
+        sample_lights(room[0], n)
+
+
+@pytest.mark.parametrize("method", ALL)
+def test_nan_at_a_valid_pixel_raises_but_not_under_the_mask(room, method):
+    rad = room[0].copy()
+    rad[10, 20, 1] = np.nan
+    with pytest.raises(NonFiniteError, match="radiance"):
+        sample_lights(rad, 50, method)
+    valid = np.ones(rad.shape[:2], bool)
+    valid[10, 20] = False
+    lights = sample_lights(rad, 50, method, valid=valid)
+    assert np.isfinite(lights.power).all()
+    rad[10, 20, 1] = np.inf
+    with pytest.raises(NonFiniteError):
+        sample_lights(rad, 50, method)
+
+
+@pytest.mark.parametrize("method", ALL)
+def test_negative_radiance_and_all_invalid_raise(room, method):
+    rad = room[0].copy()
+    rad[3, 4, 2] = -1.0
+    with pytest.raises(RangeError, match="≥ 0"):
+        sample_lights(rad, 20, method)
+    with pytest.raises(InvalidInputError, match="valid"):
+        sample_lights(room[0], 20, method, valid=np.zeros(rad.shape[:2], bool))
+
+
+def test_input_checks(room):
+    rad, dep, org = room
+    with pytest.raises(ShapeError):
+        sample_lights(rad[..., :2], 10)
+    with pytest.raises(ShapeError):
+        sample_lights(rad, 10, valid=np.ones((3, 3), bool))
+    with pytest.raises(ShapeError):
+        sample_lights(np.zeros((0, 0, 3)), 10)
+    with pytest.raises(DTypeError):
+        sample_lights(rad.astype(np.complex64), 10)
+    with pytest.raises(InvalidInputError, match="origin"):
+        sample_lights(rad, 10, origin=(0, 0, 1))
+    with pytest.raises(InvalidInputError, match="options"):
+        sample_lights(rad, 10, "pharr", a=2.0)
+    with pytest.raises(InvalidInputError, match="state"):
+        sample_lights(rad, 10, "pharr", state=Q2TreeState())
+    with pytest.raises(InvalidInputError, match="state"):
+        sample_lights(rad, 10, "q2tree", state=HemigonState())
+    with pytest.raises(RangeError, match="a"):
+        sample_lights(rad, 10, "q2tree", a=-1.0)
+    bad = dep.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(NonFiniteError, match="depth_m"):
+        sample_lights(rad, 10, depth_m=bad, origin=org)
+    assert issubclass(UnknownMethodError, RgbdEnvmapError)
+
+
+@pytest.mark.parametrize("method", ALL)
+def test_float64_and_strided_inputs_give_the_same_lights(room, method):
+    rad = room[0]
+    a = sample_lights(rad, 100, method)
+    wide = np.zeros((rad.shape[0], rad.shape[1], 4), np.float32)
+    wide[..., :3] = rad
+    b = sample_lights(wide[..., :3], 100, method)  # non-contiguous view
+    c = sample_lights(rad.astype(np.float64), 100, method)
+    np.testing.assert_array_equal(a.directions, b.directions)
+    np.testing.assert_allclose(a.directions, c.directions, atol=1e-12)
+    np.testing.assert_allclose(a.power, c.power, rtol=1e-12)
+
+
+# --- power and irradiance -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("n", [1, 12, 13, 200, 1000, 4000])
+def test_q2tree_power_sums_to_the_map_integral_exactly(room, n):
+    rad = room[0]
+    valid = np.ones(rad.shape[:2], bool)
+    valid[20:30, 40:70] = False
+    for v in (None, valid):
+        lights = sample_lights(rad, n, "q2tree", valid=v)
+        np.testing.assert_allclose(lights.total_power, ref.map_integral(rad, v), rtol=1e-13, atol=0)
+        np.testing.assert_allclose(map_integral(rad, v), ref.map_integral(rad, v), rtol=1e-13, atol=0)
+
+
+@pytest.mark.parametrize("method", ["pharr", "hemigon"])
+def test_pdf_methods_carry_the_luminance_exactly_and_colour_on_average(room, method):
+    rad = room[0]
+    lights = sample_lights(rad, 2000, method)
+    truth = ref.map_integral(rad)
+    y = ref.LUMINANCE
+    np.testing.assert_allclose(lights.total_power @ y, truth @ y, rtol=1e-6)
+    np.testing.assert_allclose(lights.total_power, truth, rtol=0.02)
+    # equal luminance power per light (the PDF methods' samples are of equal power)
+    np.testing.assert_allclose(lights.power @ y, truth @ y / 2000, rtol=1e-6)
+
+
+@pytest.mark.parametrize("method, n, tol", [("pharr", 200, 0.03), ("pharr", 1000, 0.008), ("hemigon", 200, 0.035),
+                                            ("hemigon", 1000, 0.01), ("q2tree", 200, 0.02), ("q2tree", 4000, 0.004)])
+def test_irradiance_from_lights_matches_a_brute_force_cosine_convolution(room_big, method, n, tol):
+    rad = room_big[0]
+    normals = fibonacci_normals(64)
+    truth = ref.brute_force_irradiance(rad, normals) @ ref.LUMINANCE
+    got = irradiance(sample_lights(rad, n, method), normals) @ ref.LUMINANCE
+    rms = np.sqrt(np.mean((got - truth) ** 2)) / np.sqrt(np.mean(truth ** 2))
+    assert rms < tol
+
+
+def test_irradiance_shapes_and_errors(room):
+    lights = sample_lights(room[0], 50, "pharr")
+    assert irradiance(lights, np.zeros((2, 5, 3)) + [0, 0, 1]).shape == (2, 5, 3)
+    with pytest.raises(InvalidInputError, match="positions"):
+        irradiance(lights, [[0, 0, 1.0]], points=[[0, 0, 0.0]])
+    with pytest.raises(InvalidInputError):
+        irradiance("lights", [[0, 0, 1.0]])
+
+
+# --- the Q2-Tree ----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("n, a, b", [(1, 1.0, 0.25), (13, 1.0, 0.25), (300, 1.0, 0.25), (2000, 1.0, 0.25),
+                                     (300, 0.5, 0.0), (300, 1.0, 1.0), (300, 0.0, 0.25)])
+def test_q2tree_is_algorithm_1_one_split_at_a_time(room, n, a, b):
+    rad = room[0]
+    level = cells_mod.finest_level(*rad.shape[:2], n)
+    lights = sample_lights(rad, n, "q2tree", a=a, b=b)
+    want = ref.q2tree(rad, n, level, a=a, b=b)
+    got = leaves(lights)
+    assert set(got) == set(want)
+    assert len(lights) == q2.leaf_count(n) == len(want)
+    for k, p in want.items():
+        np.testing.assert_allclose(got[k], p, rtol=1e-12, atol=1e-300)
+
+
+def test_q2tree_quads_have_healpix_solid_angles(room_big):
+    rad = room_big[0]
+    lights = sample_lights(rad, 600, "q2tree", level=6)
+    lvl = lights.cells[:, 0]
+    np.testing.assert_allclose(lights.solid_angle, [healpy.nside2pixarea(2 ** int(v)) for v in lvl], rtol=1e-14)
+    np.testing.assert_allclose(lights.solid_angle.sum(), 4 * np.pi, rtol=1e-13)
+    assert lvl.max() > lvl.min() + 2  # an adaptive tree, not a uniform one
+    # the pixels whose centres fall in a level-2 quad cover its area to within the ragged edge
+    H, W = 256, 512
+    table = cells_mod.healpix_table(H, W, 2)
+    om = ref.pixel_solid_angles(H, W)
+    got = np.bincount(table.ravel(), om.ravel(), 192)
+    np.testing.assert_allclose(got, np.pi / (3 * 16), rtol=0.03)
+    # and every quad's light lies in its quad (jitter stays inside)
+    pix = healpy.vec2pix(2 ** lvl, *lights.directions.T, nest=True)
+    np.testing.assert_array_equal(pix, lights.cells[:, 1])
+
+
+def test_q2tree_without_jitter_places_lights_at_quad_centres(room):
+    lights = sample_lights(room[0], 100, "q2tree", jitter=False)
+    want = np.stack(healpy.pix2vec(2 ** lights.cells[:, 0], lights.cells[:, 1], nest=True), axis=1)
+    np.testing.assert_allclose(lights.directions, want, atol=1e-14)
+
+
+def test_q2tree_kernels_match_numpy():
+    rng = np.random.default_rng(1)
+    child = rng.random((12 * 16, 6))
+    up = np.empty((48, 6))
+    lights_q2tree.level_up(child, up)
+    np.testing.assert_allclose(up, child.reshape(-1, 4, 6).sum(axis=1), rtol=1e-15)
+    out = np.empty(192)
+    lights_q2tree.importance(child, 0.2126, 0.7152, 0.0722, 0.5, 0.3, out)
+    np.testing.assert_allclose(out, (child[:, :3] @ ref.LUMINANCE) ** 0.5 * 0.3, rtol=1e-14)
+
+
+def test_cell_sums_kernel_matches_bincount(room):
+    rad, dep, org = room
+    valid = np.ones(rad.shape[:2], bool)
+    valid[::7, ::5] = False
+    H, W = rad.shape[:2]
+    for table, ncells in [(cells_mod.healpix_table(H, W, 4), 12 * 4 ** 4), (cells_mod.square_table(H, W, 16), 512)]:
+        for v, d in [(None, None), (valid, dep)]:
+            got = cells_mod.cell_sums(check_inputs(rad, v, d, None if d is None else org), table, ncells, d is not None)
+            np.testing.assert_allclose(got, ref.cell_sums(rad, v, table, ncells, d), rtol=1e-12, atol=1e-15)
+
+
+def test_q2tree_state_updates_equal_a_tree_built_from_scratch(room):
+    rad0, _, _ = room
+    rng = np.random.default_rng(3)
+    state = Q2TreeState()
+    frames = [rad0, rad0, rad0 * 1.5, np.roll(rad0, 9, axis=1), np.roll(rad0, 10, axis=1) * (1 + 0.2 * rng.random(rad0.shape)),
+              np.flip(rad0, axis=0).copy(), rad0]
+    steps = []
+    for i, frame in enumerate(frames):
+        n = 400 if i < 5 else 250
+        inc = sample_lights(frame, n, "q2tree", state=state)
+        fresh = sample_lights(frame, n, "q2tree")
+        np.testing.assert_array_equal(inc.cells, fresh.cells)
+        np.testing.assert_array_equal(inc.power, fresh.power)
+        np.testing.assert_array_equal(inc.directions, fresh.directions)
+        steps.append((state.rebuilt, state.steps))
+    assert steps[0] == (True, 0)
+    assert steps[1] == (False, 0) and steps[2] == (False, 0)  # same map, and a scaled one: no change (a = 1)
+    assert steps[3][1] > 0 and steps[5][1] > 0
+
+
+# --- Hemigon --------------------------------------------------------------------------------------
+
+def test_hemisphere_mapping_round_trip_and_equal_area():
+    rng = np.random.default_rng(0)
+    ab = rng.uniform(-1, 1, (20000, 2))
+    d = square_to_hemisphere(ab)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-14)
+    assert d[:, 2].min() >= 0
+    np.testing.assert_allclose(hemisphere_to_square(d), ab, atol=1e-12)
+    # equal area: uniform points on the square are uniform on the hemisphere (z uniform in [0, 1])
+    hist = np.histogram(d[:, 2], bins=10, range=(0, 1))[0]
+    assert np.abs(hist - 2000).max() < 200
+    # continuity across the square's diagonals (the concentric map's region boundaries)
+    t = np.linspace(-1, 1, 101)
+    a = square_to_hemisphere(np.stack([t, t + 1e-9], 1))
+    b = square_to_hemisphere(np.stack([t, t - 1e-9], 1))
+    assert np.abs(a - b).max() < 1e-7
+
+
+def test_hemigon_filters_energy_and_trajectories(room):
+    rad = room[0]
+    state = HemigonState(history=3)
+    raw, out = [], []
+    for k in range(5):
+        frame = rad * (1.0 if k % 2 == 0 else 3.0) if k < 4 else np.roll(rad, 5, axis=1)
+        raw.append(sample_lights(frame, 100, "hemigon"))
+        out.append(sample_lights(frame, 100, "hemigon", state=state))
+    np.testing.assert_allclose(out[0].power, raw[0].power)  # first frame: nothing to filter with
+    totals = np.array([r.total_power for r in raw])
+    for k in range(5):
+        lo = max(0, k - 2)
+        np.testing.assert_allclose(out[k].total_power, totals[lo:k + 1].mean(axis=0), rtol=1e-12)
+        mean_dir = np.mean([r.directions for r in raw[lo:k + 1]], axis=0)
+        np.testing.assert_allclose(out[k].directions, mean_dir / np.linalg.norm(mean_dir, axis=1, keepdims=True),
+                                   atol=1e-12)
+    assert state.frames == 3
+    sample_lights(rad, 60, "hemigon", state=state)  # another n restarts the history
+    assert state.frames == 1
+    with pytest.raises(RangeError):
+        HemigonState(history=0)
+
+
+# --- merging --------------------------------------------------------------------------------------
+
+def _cameras(room, second_lamp=False):
+    """Three cameras' maps of one room: sensor noise; another exposure with the lamp seen brighter;
+    another white balance with the window dimmer. With ``second_lamp`` the second camera also sees a
+    lamp the others do not."""
+    rad, _, _ = room
+    rng = np.random.default_rng(5)
+    a = rad * (1 + 0.1 * rng.random(rad.shape, dtype=np.float32))
+    b = rad * np.float32(0.7) + np.float32(0.02) * rng.random(rad.shape, dtype=np.float32)
+    b[rad[..., 0] > 100] *= 3
+    if second_lamp:
+        b[5:9, 90:96] = 40.0
+    c = rad * np.array([1.1, 1.0, 0.9], np.float32)
+    c[(rad[..., 2] > 3) & (rad[..., 0] < 100)] *= 0.3
+    return [a.astype(np.float32), b.astype(np.float32), c.astype(np.float32)]
+
+
+@pytest.mark.parametrize("weights", [None, [0.5, 0.3, 0.2]])
+@pytest.mark.parametrize("second_lamp, n_input", [(False, 1200), (True, 12 * 4 ** 5)])
+def test_q2tree_merge_equals_the_tree_of_the_averaged_map(room, weights, second_lamp, n_input):
+    """Algorithm 2 against a Q2-Tree built on the per-pixel (weighted) average of the maps: the same
+    quads, powers and directions whenever the inputs' trees reach every quad the average's tree
+    examines (deeper trees of similar maps; or, with a lamp only one camera sees, full trees)."""
+    maps = _cameras(room, second_lamp)
+    w = np.full(3, 1 / 3) if weights is None else np.asarray(weights)
+    n, level = 300, 5  # 12 288 quads at the finest level
+    trees = [sample_lights(m, n_input, "q2tree", level=level) for m in maps]
+    if not second_lamp:
+        assert len({tuple(map(tuple, t.cells.tolist())) for t in trees}) >= 2  # the inputs' trees differ
+    merged = merge_lights(trees, n, weights)
+    average = sum(wk * m.astype(np.float64) for wk, m in zip(w, maps))
+    fresh = sample_lights(average, n, "q2tree", level=level)
+    np.testing.assert_array_equal(merged.cells, fresh.cells)
+    np.testing.assert_allclose(merged.power, fresh.power, rtol=1e-10, atol=1e-300)
+    np.testing.assert_array_equal(merged.directions, fresh.directions)
+    np.testing.assert_allclose(merged.solid_angle, fresh.solid_angle)
+
+
+def test_q2tree_merge_of_shallow_trees_keeps_the_mean_power(room):
+    maps = _cameras(room, second_lamp=True)
+    trees = [sample_lights(m, 60, "q2tree") for m in maps]
+    merged = merge_lights(trees, 60)
+    assert len(merged) == 60
+    np.testing.assert_allclose(merged.total_power, np.mean([t.total_power for t in trees], axis=0), rtol=1e-12)
+    one = merge_lights([trees[0]], 60)
+    np.testing.assert_array_equal(one.cells, trees[0].cells)
+    np.testing.assert_allclose(one.power, trees[0].power, rtol=1e-12)
+
+
+def test_pdf_merge_interpolates_by_index(room):
+    maps = _cameras(room)
+    a, b = (sample_lights(m, 100, "pharr") for m in maps[:2])
+    m = merge_lights([a, b], weights=[3, 1])
+    np.testing.assert_allclose(m.power, 0.75 * a.power + 0.25 * b.power)
+    d = 0.75 * a.directions + 0.25 * b.directions
+    np.testing.assert_allclose(m.directions, d / np.linalg.norm(d, axis=1, keepdims=True))
+    same = merge_lights([a, a])
+    np.testing.assert_allclose(same.directions, a.directions, atol=1e-15)
+    with pytest.raises(InvalidInputError, match="equal length"):
+        merge_lights([a, sample_lights(maps[0], 50, "pharr")])
+    with pytest.raises(InvalidInputError, match="one method"):
+        merge_lights([a, sample_lights(maps[0], 100, "hemigon")])
+    with pytest.raises(RangeError):
+        merge_lights([a, b], weights=[-1, 1])
+
+
+# --- positions ------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("method", ALL)
+def test_lights_are_placed_by_the_depth_and_light_near_points_like_the_map(room_big, method):
+    rad, dep, org = room_big
+    lights = sample_lights(rad, 2000, method, depth_m=dep, origin=org)
+    np.testing.assert_array_equal(lights.origin, org)
+    top = np.argmax(lights.power @ ref.LUMINANCE) if method == "q2tree" else None
+    towards = np.array([0.4, -0.3, 1.9]) / np.linalg.norm([0.4, -0.3, 1.9])
+    lamp = lights.directions @ towards > np.cos(0.06)  # the lamp's disc spans 0.079 rad
+    assert lamp.sum() >= (1 if method == "q2tree" else 5)  # the finest quads here are 0.06 rad wide
+    np.testing.assert_allclose(lights.positions[lamp, 2], 2.9, atol=0.04)  # on the ceiling, 1.9 m above the origin
+    assert (np.linalg.norm(lights.positions[lamp, :2] - [0.4, -0.3], axis=1) < 0.15).all()
+    if top is not None:
+        assert lamp[top]
+    # irradiance 0.9 m below the lamp from point lights, against the map's pixels as point sources
+    x, nrm = np.array([0.4, -0.3, 2.0]), np.array([0.0, 0.0, 1.0])
+    H, W = rad.shape[:2]
+    p = org + ref.pixel_directions(H, W) * dep[..., None].astype(np.float64)
+    inten = rad * (ref.pixel_solid_angles(H, W) * dep.astype(np.float64) ** 2)[..., None]
+    delta = p - x
+    r2 = (delta ** 2).sum(-1)
+    truth = (inten * (np.maximum(delta @ nrm / np.sqrt(r2), 0) / r2)[..., None]).reshape(-1, 3).sum(0)
+    got = irradiance(lights, nrm[None], x[None])[0]
+    np.testing.assert_allclose(got @ ref.LUMINANCE, truth @ ref.LUMINANCE, rtol=0.02)
+    # at the origin, point lights give what the directional ones give
+    np.testing.assert_allclose(irradiance(lights, nrm[None], org[None]), irradiance(lights, nrm[None]), rtol=1e-10)
+
+
+# --- hard cases -----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("method", ALL)
+def test_an_all_black_map_gives_powerless_lights(method):
+    lights = sample_lights(np.zeros((16, 32, 3), np.float32), 40, method)
+    assert (lights.power == 0).all()
+    np.testing.assert_allclose(np.linalg.norm(lights.directions, axis=1), 1.0)
+
+
+@pytest.mark.parametrize("method", ALL)
+@pytest.mark.parametrize("pixel", [(0, 5), (31, 60), (16, 0), (16, 63)])  # poles, seam columns
+def test_a_single_bright_pixel(method, pixel):
+    rad = np.zeros((32, 64, 3), np.float32)
+    rad[pixel] = (100.0, 50.0, 10.0)
+    lights = sample_lights(rad, 30, method)
+    truth = ref.map_integral(rad)
+    if method == "q2tree":
+        np.testing.assert_allclose(lights.total_power, truth, rtol=1e-14)
+        assert (lights.power > 0).any(axis=1).sum() == 1
+        top = np.argmax(lights.power[:, 0])
+        d = ref.pixel_directions(32, 64)[pixel]
+        lvl, p = lights.cells[top]
+        assert healpy.vec2pix(2 ** int(lvl), *d, nest=True) == p
+    else:
+        rows, cols, ok = equirect_pixel_index(lights.directions, 32, 64)
+        if method == "pharr":  # every sample inside that pixel, with the pixel's power split evenly
+            assert ok.all() and (rows == pixel[0]).all() and (cols == pixel[1]).all()
+        else:  # in the pixel's Hemigon cell: within a cell's width of it
+            d = ref.pixel_directions(32, 64)[pixel]
+            assert (lights.directions @ d > np.cos(0.35)).all()
+        np.testing.assert_allclose(lights.total_power, truth, rtol=1e-6)
+
+
+@pytest.mark.parametrize("method", ALL)
+def test_one_light_and_more_lights_than_pixels(method):
+    rad, _, _ = ref.room_map(8, 16)
+    one = sample_lights(rad, 1, method)
+    assert len(one) == (12 if method == "q2tree" else 1)
+    many = sample_lights(rad, 500, method)
+    if method == "q2tree":
+        assert len(many) == 501
+        np.testing.assert_allclose(many.total_power, ref.map_integral(rad), rtol=1e-13)
+    else:
+        assert len(many) == 500 and (many.power > 0).all()
+
+
+# --- the direct / indirect split ------------------------------------------------------------------
+
+@pytest.mark.parametrize("tau", [0.0, 0.3, 0.6, 0.9, 1.0])
+def test_split_counts_energy_once(room, tau):
+    rad = room[0]
+    valid = np.ones(rad.shape[:2], bool)
+    valid[40:, :10] = False
+    s = split_direct_indirect(rad, tau, valid)
+    total = ref.map_integral(rad, valid)
+    np.testing.assert_allclose(s.direct_energy + s.indirect_energy, total, rtol=1e-12)
+    np.testing.assert_allclose(ref.map_integral(s.indirect, valid), s.indirect_energy, rtol=1e-12)
+    assert not (s.direct & ~valid).any()
+    y = rad @ ref.LUMINANCE
+    if tau == 0:
+        assert not s.direct.any()
+        return
+    lights = sample_lights(rad, 100, "q2tree", valid=s.direct)
+    np.testing.assert_allclose(lights.total_power + ref.map_integral(s.indirect, valid), total, rtol=1e-12)
+    assert s.direct_fraction >= tau - 1e-12
+    # the brightest pixels: every direct pixel is at least as bright as every indirect valid one
+    assert y[s.direct].min() >= y[valid & ~s.direct].max(initial=0)
+    # and none can be dropped: without the dimmest direct level the fraction falls below tau
+    e = y * ref.pixel_solid_angles(*rad.shape[:2])
+    dimmest = s.direct & (y == y[s.direct].min())
+    assert (e[s.direct & ~dimmest].sum() / e[valid].sum()) < tau
+
+
+def test_split_puts_the_lamp_in_the_direct_part(room):
+    rad = room[0]
+    s = split_direct_indirect(rad, 0.5)
+    assert s.direct[rad[..., 0] > 100].all()
+    assert (s.indirect[s.direct] == 0).all()
+    with pytest.raises(RangeError):
+        split_direct_indirect(rad, 1.5)
+    bad = rad.copy()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(NonFiniteError):
+        split_direct_indirect(bad, 0.5)
