@@ -108,7 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
         "composites.mp4, timing.csv / timing.md / timing.png, accuracy.json, depth_frames.csv, config.yaml, "
         "run.json; session/ (the log, with ground truth under groundtruth/), preview/ and simulation.json.",
     )
-    sim.add_argument("--duration", type=float, required=True, metavar="SECONDS", help="simulated time to record, in seconds")
+    sim.add_argument("--duration", type=float, required=True, metavar="SECONDS",
+                     help="simulated time to record, in seconds (at most 86400)")
     sim.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     sim.add_argument("--scene", default="office", metavar="NAME", help="packaged scene name (office, empty) or a YAML path")
     sim.add_argument("--trajectory", default=None, metavar="NAME",
@@ -131,19 +132,34 @@ def build_parser() -> argparse.ArgumentParser:
                      "colour (30 Hz), recorded as a TUM RGB-D sequence in OUT/session and replayed through the Kinect path; "
                      "phone: a LiDAR phone (256×192 depth registered to 4:3 colour), recorded in the Stray Scanner layout "
                      "in OUT/session and replayed through the mobile path")
+    from sim.faults import add_arguments as add_fault_args
+
+    add_fault_args(sim)
     _add_pipeline_args(sim)
 
+    from rgbd_envmap.sources.frames import layouts_text
+
+    class _ReplayFormatter(fmt):
+        """Keeps the layouts table's lines (indented ones) as written; fills the rest."""
+
+        def _fill_text(self, text, width, indent):
+            parts = text.split("\n\n")
+            return "\n\n".join("\n".join(indent + line for line in part.splitlines()) if part.startswith("  ")
+                               else super(_ReplayFormatter, self)._fill_text(part, width, indent) for part in parts)
+
     rep = sub.add_parser(
-        "replay", formatter_class=fmt, help="run the pipeline on a recorded session log or RGB-D sequence",
-        description="Replay a recording through the pipeline, with any settings: a session log (as written by "
-        "simulate), a TUM RGB-D sequence (as the benchmark ships it: rgb.txt, depth.txt, groundtruth.txt, rgb/, "
-        "depth/), an ICL-NUIM sequence in its TUM-compatible layout (associations.txt, *.gt.freiburg, rgb/, "
-        "depth/) or a phone LiDAR capture in the Stray Scanner layout (rgb.mp4, depth/, confidence/, "
-        "camera_matrix.csv, odometry.csv); the layout is recognised by its files. Writes the same run folder as simulate (without "
-        "session/ and preview/). Unreadable packets are skipped and counted in run.json, or end the run with --strict.",
+        "replay", formatter_class=_ReplayFormatter,
+        help="run the pipeline on a recording: session log, TUM RGB-D, ICL-NUIM, Redwood, phone capture, RealSense bag",
+        description="Replay a recording through the pipeline, with any settings. Writes the same run folder as simulate "
+        "(without session/ and preview/). Unreadable packets are skipped and counted in run.json, or end the run with "
+        "--strict.\n\nLOG is recognised by its files, in this order (layout: files; where its poses come from):\n\n"
+        + layouts_text() + "\n\nRGB-D recordings (TUM RGB-D, ICL-NUIM, Redwood, RealSense) take --intrinsics, "
+        "--depth-scale and --poses; TUM RGB-D also --tum-depth-correction. A recording without poses (a RealSense bag, "
+        "a TUM validation sequence, a Redwood folder without its trajectory) needs --poses FILE.",
     )
     rep.add_argument("log", type=Path, metavar="LOG",
-                     help="the recording's folder: session log, TUM RGB-D or ICL-NUIM sequence, phone capture")
+                     help="the recording: a folder (session log, TUM RGB-D, ICL-NUIM or Redwood sequence, phone capture) "
+                     "or a RealSense .bag file")
     rep.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     rep.add_argument("--origin", type=_xyz, nargs=3, default=None, metavar=("X", "Y", "Z"),
                      help="EM origin in world metres (default: the log's true-map origin, else 1 m in front of the first camera)")
@@ -152,37 +168,42 @@ def build_parser() -> argparse.ArgumentParser:
                      help="replace an existing OUT, once the new run is complete (without it a non-empty OUT is refused)")
     rep.add_argument("--quiet", action="store_true", help="no progress bar")
     seq = rep.add_argument_group(
-        "RGB-D sequences (TUM RGB-D, ICL-NUIM)",
-        "Camera, depth and poses of a sequence; run.json records which intrinsics were used and why.")
-    seq.add_argument("--intrinsics", default=None, metavar="fr1|fr2|fr3|default|icl-nuim|FILE",
+        "RGB-D recordings (TUM RGB-D, ICL-NUIM, Redwood, RealSense)",
+        "Camera, depth and poses of a recording; run.json records which intrinsics were used and why.")
+    seq.add_argument("--intrinsics", default=None, metavar="fr1|fr2|fr3|default|icl-nuim|primesense|FILE",
                      help="the camera: a preset (the TUM benchmark's freiburg1/2/3 calibrations with their distortion, "
-                     "the ROS default fx = fy = 525, ICL-NUIM's fx = 481.2, fy = -480) or a JSON file of Intrinsics "
-                     "(width, height, fx, fy, cx, cy, distortion {k1, k2, p1, p2, k3}). Default: calibration.json if the "
+                     "the ROS default fx = fy = 525, ICL-NUIM's fx = 481.2, fy = -480, Open3D's PrimeSense default) or a "
+                     "JSON file: Intrinsics (width, height, fx, fy, cx, cy, distortion {k1, k2, p1, p2, k3}) or Open3D's "
+                     "PinholeCameraIntrinsic (width, height, intrinsic_matrix). Default: TUM: calibration.json if the "
                      "folder has one, else the camera its name names (rgbd_dataset_freiburg1_* → fr1), else default; "
-                     "ICL-NUIM: icl-nuim")
+                     "ICL-NUIM: icl-nuim; Redwood: camera_intrinsic.json, else primesense; RealSense: the bag's")
     seq.add_argument("--depth-scale", type=float, default=None, metavar="UNITS_PER_M",
-                     help="depth PNG units per metre (default 5000, both benchmarks')")
+                     help="depth units per metre (default: TUM RGB-D and ICL-NUIM 5000, Redwood 1000, RealSense the bag's)")
     seq.add_argument("--tum-depth-correction", action="store_const", const="auto", default=None,
-                     help="multiply the depth by the TUM benchmark's correction factor of the freiburg camera in use "
+                     help="TUM RGB-D: multiply the depth by the benchmark's correction factor of the freiburg camera in use "
                      "(fr1 1.035, fr2 1.031, fr3 1.0; from --intrinsics or the folder name). The published depth "
                      "images already carry it: this is for recordings that do not")
     seq.add_argument("--poses", type=Path, default=None, metavar="FILE",
-                     help="a trajectory in TUM format (timestamp tx ty tz qx qy qz qw, e.g. an estimated one) instead of "
-                     "groundtruth.txt / the *.gt.freiburg file")
+                     help="a trajectory instead of the recording's own, or for one that has none: TUM format (timestamp "
+                     "tx ty tz qx qy qz qw, looked up by time) or the .log format (per frame a line 'frame frame frame+1' "
+                     "and a 4x4 camera-to-world matrix, looked up by frame number)")
     _add_pipeline_args(rep)
 
     rpt = sub.add_parser("report", formatter_class=fmt, help="regenerate the reports of a run folder",
                          description="Rewrite timing.csv, timing.md and timing.png of RUN from its stage_times.csv, "
-                         "accuracy.json and run.json.")
+                         "accuracy.json and run.json. RUN: a run folder written by simulate or replay (it needs "
+                         "stage_times.csv; accuracy.json, run.json and config.yaml are read when present).")
     rpt.add_argument("run", type=Path, metavar="RUN", help="a run folder written by simulate or replay")
 
     sw = sub.add_parser(
         "sweep", formatter_class=fmt, help="speed-vs-error grid over pipeline settings",
         description="Replay one recorded log under a grid of settings (EM size, SH bands, hole filling, "
         "correction method, translation method), in parallel over the cores, and write sweep.csv, "
-        "sweep.md (time and error side by side) and pareto.png.",
+        "sweep.md (time and error side by side) and pareto.png. LOG: a session log written by simulate (the "
+        "session/ folder of a run, with its groundtruth/: the errors are measured against it); other layouts "
+        "are not swept.",
     )
-    sw.add_argument("log", type=Path, metavar="LOG", help="session directory recorded by simulate")
+    sw.add_argument("log", type=Path, metavar="LOG", help="session log folder recorded by simulate (RUN/session)")
     sw.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     sw.add_argument("--jobs", type=int, default=None, metavar="N", help="parallel processes (default: the number of cores)")
     sw.add_argument("--axes", nargs="+", default=None, metavar="AXIS",
@@ -210,7 +231,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "simulate":
             colour_size = args.colour_size or ((960, 720) if args.device == "phone" else (960, 540))
             from apps.simulate import SimulateOptions, run_simulate
+            from sim.faults import from_arguments as fault_options
+            from sim.limits import check_duration
 
+            check_duration(args.duration, "--duration")  # inf or 1e7 before anything is allocated or written
             config = _pipeline_config(args)  # usage errors before anything is written
 
             with staged_run(args.out, overwrite=args.overwrite) as partial:
@@ -222,6 +246,7 @@ def main(argv: list[str] | None = None) -> int:
                     preview_envmap_height=args.preview_envmap_height, overwrite=True, progress=not args.quiet,
                     pipeline=not args.record_only, config=config, composite_every=args.composite_every,
                     video=not args.no_video, rerun=args.rerun, cache_dir=args.cache_dir, device=args.device,
+                    faults=fault_options(args),
                 ))
             print(
                 f"recorded {summary['depth_packets']} depth and {summary['colour_packets']} colour packets "
@@ -234,9 +259,9 @@ def main(argv: list[str] | None = None) -> int:
             from apps.replay import ReplayOptions, run_replay
 
             config = _pipeline_config(args)  # usage errors before anything is written
-            from apps.replay import detect_layout
+            from rgbd_envmap.sources.frames import detect_source_layout
 
-            detect_layout(args.log)  # and a folder replay cannot read
+            detect_source_layout(args.log)  # and a recording replay cannot read
             with staged_run(args.out, overwrite=args.overwrite) as partial:
                 summary = run_replay(ReplayOptions(
                     log=args.log, out=partial, origin=tuple(args.origin) if args.origin else None, config=config,

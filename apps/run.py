@@ -229,7 +229,8 @@ def run_pipeline(
     dump_yaml(pipeline.config, out / "config.yaml")
     summary = {
         "depth_packets": n_depth, "colour_packets": n_colour, "depth_frames_processed": pipeline.depth_steps,
-        "depth_packets_dropped": pipeline.dropped_depth, "pipeline_wall_s": wall,
+        "depth_packets_dropped": pipeline.dropped_depth, "packets_skipped": dict(sorted(pipeline.skipped.items())),
+        "pipeline_wall_s": wall,
         "em_origin": pipeline.capture.em.origin.tolist(), **((extra() if callable(extra) else extra) or {}),
     }
     (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n")

@@ -5,14 +5,25 @@ Writes the run folder of :mod:`apps.run` (map, composites, timing and accuracy r
 ``session/groundtruth/``, including ``envmap.npz``, the true map at the session's end),
 ``preview/`` (contact sheet, depth and confidence images, the true map) and ``simulation.json``.
 
+With ``faults`` (:class:`sim.faults.FaultConfig`, Tango device only) the device misbehaves; what it
+did is recorded in ``session/groundtruth/faults.jsonl`` (the configuration, then one line per packet
+a fault touched, delivered or withheld) and summed in ``simulation.json`` and ``run.json``
+(``faults``), beside what the pipeline skipped and why (``packets_skipped`` in ``run.json``). With
+reordering on, the log holds the packets in timestamp order (its format needs that), so a replay
+sees them sorted while the live run saw them as delivered; every other fault replays bit for bit.
+
 The pipeline is fed each packet exactly as the log stores it (:func:`rgbd_envmap.logs.as_logged`),
 so replaying the log with the same config reproduces ``envmap.npz`` bit for bit.
 """
 
 from __future__ import annotations
 
+import contextlib
+import heapq
+import itertools
 import json
 import time
+from collections import Counter
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -29,8 +40,10 @@ from rgbd_envmap.logs import SessionWriter, as_logged
 from rgbd_envmap.pipeline import Pipeline, PipelineConfig
 from sim.colour_camera import ColourCameraConfig
 from sim.device import TangoDeviceConfig
+from sim.faults import FaultConfig
 from sim.groundtruth import render_envmap
 from sim.scene import load_scene
+from sim.limits import check_duration
 from sim.session import Simulator
 from sim.trajectory import load_trajectory
 
@@ -65,6 +78,21 @@ class SimulateOptions:
     #: "tango" (ToF point clouds at 5 Hz + NV21 colour at 30 Hz) or "kinect" (registered 640×480
     #: depth + colour at 30 Hz, recorded as a TUM RGB-D sequence, then run through the Kinect path).
     device: str = "tango"
+    #: what goes wrong with the device (None: nothing; Tango device only).
+    faults: FaultConfig | None = None
+
+
+@contextlib.contextmanager
+def _fault_record(session: Path, faults: FaultConfig | None, holder: list):
+    """``session/groundtruth/faults.jsonl``: the fault configuration, then one line per event."""
+    if faults is None:
+        yield None
+        return
+    (session / "groundtruth").mkdir(parents=True, exist_ok=True)
+    with open(session / "groundtruth" / "faults.jsonl", "w", buffering=1) as f:
+        f.write(json.dumps({"faults": faults.to_dict()}) + "\n")
+        holder[0] = f
+        yield f
 
 
 def _pick(n: int, k: int) -> set[int]:
@@ -73,9 +101,10 @@ def _pick(n: int, k: int) -> set[int]:
 
 def run_simulate(opts: SimulateOptions) -> dict:
     """Simulate, write ``out/session/``, ``out/preview/`` and ``out/simulation.json``; return the summary."""
-    if not opts.duration_s > 0:
-        raise InvalidInputError(f"duration: expected seconds > 0, got {opts.duration_s}")
+    check_duration(opts.duration_s)
     check_method(opts.device, ("tango", "kinect", "phone"), "device")
+    if opts.faults is not None and opts.faults.enabled and opts.device != "tango":
+        raise InvalidInputError(f"faults: only the tango device simulates faults, got device {opts.device!r}")
     if opts.device == "phone":
         from apps.phone import run_simulate_phone
 
@@ -89,29 +118,55 @@ def run_simulate(opts: SimulateOptions) -> dict:
         auto_exposure=opts.auto_exposure, auto_white_balance=opts.auto_white_balance,
     )
     device = TangoDeviceConfig(colour=colour, tracking_noise_m=opts.tracking_noise_m, tracking_noise_deg=opts.tracking_noise_deg)
-    sim = Simulator(scene, trajectory, device, seed=opts.seed)
-    schedule = sim.schedule(opts.duration_s)
-    n_depth = sum(1 for e in schedule if e[1] == "depth")
-    n_colour = len(schedule) - n_depth
-    show_depth, show_colour = _pick(n_depth, 6), _pick(n_colour, 12)
-
     out = Path(opts.out)
     preview_dir = out / "preview"
     preview_dir.mkdir(parents=True, exist_ok=True)
+    faults = opts.faults if opts.faults is not None and opts.faults.enabled else None
+    fault_counts: Counter = Counter()
+    fault_file: list = [None]  # opened once the session writer has made the session folder
+
+    def on_fault(event: dict) -> None:
+        fault_counts.update(event["faults"])
+        fault_file[0].write(json.dumps(event) + "\n")
+
+    sim = Simulator(scene, trajectory, device, seed=opts.seed, faults=faults, on_fault=on_fault if faults else None)
+    counts = sim.counts(opts.duration_s)
+    n_depth, n_colour = counts["depth"], counts["colour"]
+    show_depth, show_colour = _pick(n_depth, 6), _pick(n_colour, 12)
+    total = n_depth + n_colour  # captured; with faults fewer may be delivered
     times: dict[str, list[float]] = {"depth": [], "colour": []}
     thumbs, depth_tiles = [], []
     counters = {"depth": 0, "colour": 0}
     last_t = [0.0]
     origin = np.asarray(scene.virtual_object_position, np.float64)
 
+    # Reordered packets are logged in timestamp order: held until no later delivery can precede them.
+    hold = faults.reorder_window + 1 if faults is not None and faults.reorder_window > 1 else 0
+    unwritten: list = []
+    order = itertools.count()
+
+    def log(writer: SessionWriter, sp=None) -> None:
+        if not hold:
+            if sp is not None:
+                writer.write(sp.packet, true_pose=sp.true_pose, groundtruth=sp.groundtruth)
+            return
+        if sp is not None:
+            heapq.heappush(unwritten, (sp.packet.timestamp_ns, sp.packet.kind != "depth", next(order), sp))
+        while unwritten and (sp is None or len(unwritten) > hold):
+            w = heapq.heappop(unwritten)[-1]
+            writer.write(w.packet, true_pose=w.true_pose, groundtruth=w.groundtruth)
+
     def recorded(writer: SessionWriter):
         stream = iter(sim.run(opts.duration_s))
-        for _ in range(len(schedule)):
+        while True:
             t0 = time.perf_counter()
-            sp = next(stream)
+            sp = next(stream, None)
+            if sp is None:
+                log(writer)
+                return
             kind = sp.packet.kind
             times[kind].append(time.perf_counter() - t0)
-            writer.write(sp.packet, true_pose=sp.true_pose, groundtruth=sp.groundtruth)
+            log(writer, sp)
             last_t[0] = sp.t_s
             i = counters[kind]
             counters[kind] += 1
@@ -132,19 +187,21 @@ def run_simulate(opts: SimulateOptions) -> dict:
         return arrays
 
     wall0 = time.perf_counter()
-    with SessionWriter(out / "session", sim.calibration, overwrite=opts.overwrite) as writer:
+    with SessionWriter(out / "session", sim.calibration, overwrite=opts.overwrite) as writer, \
+            _fault_record(out / "session", faults, fault_file):
         if opts.pipeline:
             pipe = Pipeline(opts.config, sim.calibration, origin, cache_dir=opts.cache_dir)
             with pipe:
                 run_pipeline(
-                    pipe, recorded(writer), len(schedule),
+                    pipe, recorded(writer), total,
                     RunOptions(out, composite_every=opts.composite_every, video=opts.video, progress=opts.progress,
                                rerun=opts.rerun),
                     groundtruth_envmap=groundtruth_envmap,
-                    extra={"source": "simulate", "scene": scene.name},
+                    extra=lambda: {"source": "simulate", "scene": scene.name,
+                                   **({"faults": dict(sorted(fault_counts.items()))} if faults else {})},
                 )
         else:
-            for _ in tqdm(recorded(writer), total=len(schedule), desc="simulate", unit="pkt", disable=bar_disable(opts.progress)):
+            for _ in tqdm(recorded(writer), total=total, desc="simulate", unit="pkt", disable=bar_disable(opts.progress)):
                 pass
             groundtruth_envmap()
     wall = time.perf_counter() - wall0
@@ -171,6 +228,7 @@ def run_simulate(opts: SimulateOptions) -> dict:
         "colour_size": [opts.colour_width, opts.colour_height],
         "depth_packets": counters["depth"],
         "colour_packets": counters["colour"],
+        **({"faults": dict(sorted(fault_counts.items()))} if faults else {}),
         "simulate_depth_packet": stats(times["depth"]),
         "simulate_colour_packet": stats(times["colour"]),
         "wall_s": wall,

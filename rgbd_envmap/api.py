@@ -2,8 +2,9 @@
 
 ``rgbd_envmap.replay(path)`` runs the pipeline over any recording ``rgbd-envmap replay`` reads (layout
 detected by :func:`rgbd_envmap.sources.frames.open_source`) and returns the map in memory; it writes
-nothing and never imports the apps. With the same config and origin the map is bit for bit the one
-the CLI's ``replay`` writes to ``envmap.npz``.
+nothing and never imports the apps. The CLI opens the recording with the same function and feeds
+the same items in the same order, so with the same config and origin the map is bit for bit the one
+its ``replay`` writes to ``envmap.npz``.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from rgbd_envmap.checks import check_array
 from rgbd_envmap.envmap.map import EnvironmentMap
 from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.pipeline import COLOUR_TOTAL, DEPTH_TOTAL, RENDER_STAGES, Pipeline, PipelineConfig
-from rgbd_envmap.sources.frames import FrameSource, as_source
+from rgbd_envmap.sources.frames import FrameSource, as_source, feed
 from rgbd_envmap.timing import frame_totals, stage_stats, summarise
 
 __all__ = ["RunResult", "replay", "default_replay_config"]
@@ -89,26 +90,33 @@ def _accuracy(em: EnvironmentMap, truth: Mapping | None) -> dict:
 
 
 def replay(source: str | Path | FrameSource, config: PipelineConfig | None = None, origin=None, *,
-           max_packets: int | None = None, cache_dir: str | Path | None = None) -> RunResult:
+           poses: str | Path | None = None, max_packets: int | None = None,
+           cache_dir: str | Path | None = None) -> RunResult:
     """Run the pipeline over a recording and return the map, coefficients, timing and accuracy.
 
     Args:
-        source: a recording folder (a session log written by ``simulate``, a TUM RGB-D or ICL-NUIM
-            sequence, a phone capture in the Stray Scanner layout: detected by its files), or an open
-            reader (:class:`~rgbd_envmap.logs.SessionLog`, :class:`~rgbd_envmap.tum.TumSequence`,
-            :class:`~rgbd_envmap.sources.stray.StrayCapture`) or
-            :class:`~rgbd_envmap.sources.frames.FrameSource`.
+        source: a recording (a session log written by ``simulate``, a TUM RGB-D, ICL-NUIM or Redwood
+            folder, a phone capture in the Stray Scanner layout, a RealSense ``.bag``: detected by its
+            files, :data:`~rgbd_envmap.sources.frames.SOURCE_LAYOUTS`), or an open reader
+            (:class:`~rgbd_envmap.logs.SessionLog`, :class:`~rgbd_envmap.tum.TumSequence`,
+            :class:`~rgbd_envmap.sources.stray.StrayCapture`,
+            :class:`~rgbd_envmap.sources.realsense.RealSenseBag`) or
+            :class:`~rgbd_envmap.sources.frames.FrameSource`. Other opening settings:
+            :func:`~rgbd_envmap.sources.frames.open_source` with a
+            :class:`~rgbd_envmap.sources.options.SourceOptions`, then pass what it returns.
         config: the pipeline settings; None: :func:`default_replay_config` (``PipelineConfig()`` with
             rendering off: nothing is composited or written). Rendering on costs time and changes
             nothing returned.
         origin: (3,) world metres; None: the source's default (its true map's origin if it has one,
             else 1 m in front of the first colour camera; an RGB-D sequence: the first readable frame's).
+        poses: a trajectory file (TUM format or ``.log``) for a recording path: instead of its own
+            poses, or for one that has none (a RealSense bag, a Redwood folder without its trajectory).
         max_packets: feed at most this many items (packets, or RGB-D frames); None: all.
         cache_dir: where the object's PRT transfer is cached (None: the default cache).
 
     Raises:
-        LogFormatError: a folder of no known layout (naming the layouts and the files found), or a
-            recording whose index cannot be read.
+        LogFormatError: a folder of no known layout (naming the layouts and the files found), a
+            recording without poses (naming ``poses``), or a recording whose index cannot be read.
         InvalidInputError: a bad origin, ``max_packets`` or source object.
     """
     if max_packets is not None and (isinstance(max_packets, bool) or not isinstance(max_packets, (int, np.integer))
@@ -118,22 +126,17 @@ def replay(source: str | Path | FrameSource, config: PipelineConfig | None = Non
         config = default_replay_config()
     elif not isinstance(config, PipelineConfig):
         raise InvalidInputError(f"config: expected a PipelineConfig, got {type(config).__name__}")
-    src = as_source(source)
+    src = as_source(source) if poses is None else as_source(source, poses=poses)
     o = src.default_origin() if origin is None else check_array(origin, "origin", shape=(3,), finite=True)
     o = np.asarray(o, np.float64)
     items = iter(src) if max_packets is None else islice(iter(src), int(max_packets))
     n = 0
     with Pipeline(config, src.calibration, o, cache_dir=cache_dir) as pipe:
-        if src.kind == "rgbd":
-            for f in items:
-                n += 1
-                pipe.feed_rgbd(f.timestamp_ns, f.rgb, f.depth_m, f.known, f.T_world_from_cam)
-        elif src.kind == "tango":
-            for packet in items:
-                n += 1
-                pipe.feed(packet)
-        else:
+        if src.kind not in ("rgbd", "tango"):
             raise InvalidInputError(f"source.kind: expected 'tango' or 'rgbd', got {src.kind!r}")
+        for item in items:
+            n += 1
+            feed(pipe, item)
         pipe.finish()
         em = pipe.capture.em
         coeffs = np.array(pipe.coeffs[: pipe.bands * pipe.bands], copy=True)

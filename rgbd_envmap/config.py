@@ -17,7 +17,8 @@ from typing import Any, TypeVar
 
 import yaml
 
-from rgbd_envmap.errors import InvalidInputError
+from rgbd_envmap.checks import check_instance, check_path
+from rgbd_envmap.errors import DTypeError, InvalidInputError
 
 __all__ = ["to_dict", "from_dict", "apply_overrides", "load_yaml", "dump_yaml"]
 
@@ -25,14 +26,26 @@ T = TypeVar("T")
 
 
 def to_dict(cfg: Any) -> Any:
-    """A plain nested dict / list / scalar view of a dataclass tree (tuples become lists)."""
+    """A plain nested dict / list / scalar view of a dataclass tree (tuples and arrays become lists);
+    ``cfg`` is a dataclass instance (:class:`~rgbd_envmap.errors.DTypeError` otherwise)."""
+    if not (dataclasses.is_dataclass(cfg) and not isinstance(cfg, type)):
+        raise DTypeError(f"cfg: expected a config dataclass instance, got {type(cfg).__name__}")
+    return _plain(cfg)
+
+
+def _plain(cfg: Any) -> Any:
     if dataclasses.is_dataclass(cfg) and not isinstance(cfg, type):
-        return {f.name: to_dict(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
+        return {f.name: _plain(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
     if isinstance(cfg, (tuple, list)):
-        return [to_dict(v) for v in cfg]
-    if hasattr(cfg, "item") and callable(cfg.item):  # numpy scalars
-        return cfg.item()
+        return [_plain(v) for v in cfg]
+    if hasattr(cfg, "tolist") and callable(cfg.tolist):  # numpy scalars and arrays
+        return cfg.tolist()
     return cfg
+
+
+def _check_config_class(cls: object, name: str = "cls") -> None:
+    if not (isinstance(cls, type) and dataclasses.is_dataclass(cls)):
+        raise DTypeError(f"{name}: expected a config dataclass type (such as PipelineConfig), got {cls!r}")
 
 
 def _hints(cls: type) -> dict[str, Any]:
@@ -103,8 +116,10 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
 
 def from_dict(cls: type[T], data: dict, *, base: T | None = None, prefix: str = "") -> T:
     """A ``cls`` tree from a (partial) mapping; missing keys keep ``base``'s values (or the defaults)."""
+    _check_config_class(cls)
     if not isinstance(data, dict):
-        raise InvalidInputError(f"{prefix or cls.__name__}: expected a mapping, got {type(data).__name__}")
+        raise InvalidInputError(f"{prefix or 'data'}: expected a mapping of {cls.__name__} fields, got {type(data).__name__}")
+    check_instance(base, cls, "base", optional=True)
     hints = _hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - names)
@@ -126,9 +141,15 @@ def from_dict(cls: type[T], data: dict, *, base: T | None = None, prefix: str = 
 
 def apply_overrides(cfg: T, overrides: list[str]) -> T:
     """Apply ``section.field=value`` strings (values parsed as YAML scalars / lists) in order."""
+    if not (dataclasses.is_dataclass(cfg) and not isinstance(cfg, type)):
+        raise DTypeError(f"cfg: expected a config dataclass instance, got {type(cfg).__name__}")
+    if isinstance(overrides, str) or not isinstance(overrides, (list, tuple)):
+        raise DTypeError(f"overrides: expected a list of KEY=VALUE strings, got {type(overrides).__name__}")
     for text in overrides:
+        if not isinstance(text, str):
+            raise DTypeError(f"overrides: expected KEY=VALUE strings, got {text!r}")
         if "=" not in text:
-            raise InvalidInputError(f"override {text!r}: expected KEY=VALUE such as capture.ccm_method=ridge")
+            raise InvalidInputError(f"overrides: expected KEY=VALUE such as capture.ccm_method=ridge, got {text!r}")
         key, raw = text.split("=", 1)
         parts = key.strip().split(".")
         value: Any = yaml.safe_load(raw) if raw.strip() else ""
@@ -143,7 +164,8 @@ def apply_overrides(cfg: T, overrides: list[str]) -> T:
 
 def load_yaml(cls: type[T], path: str | Path, *, base: T | None = None) -> T:
     """A ``cls`` tree from a YAML file (partial files override ``base`` / the defaults)."""
-    path = Path(path)
+    _check_config_class(cls)
+    path = check_path(path)
     try:
         data = yaml.safe_load(path.read_text()) or {}
     except FileNotFoundError:
@@ -158,4 +180,6 @@ def load_yaml(cls: type[T], path: str | Path, *, base: T | None = None) -> T:
 
 def dump_yaml(cfg: Any, path: str | Path) -> None:
     """Write the whole tree (every field, resolved) as YAML."""
-    Path(path).write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))
+    if not (dataclasses.is_dataclass(cfg) and not isinstance(cfg, type)):
+        raise DTypeError(f"cfg: expected a config dataclass instance, got {type(cfg).__name__}")
+    check_path(path).write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))

@@ -54,7 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd_envmap.checks import check_array, check_method
+from rgbd_envmap.checks import check_array, check_method, check_path
 from rgbd_envmap.errors import InvalidInputError
 
 __all__ = [
@@ -116,10 +116,11 @@ def to_convention(image: np.ndarray, convention: str) -> np.ndarray:
             a quarter: column c holds our column 3W/4 − 1 − c, modulo W).
 
     Returns:
-        A new array of the same shape and dtype.
+        A new array of the same shape and dtype. Values are only moved, never computed: NaN stays NaN
+        at its moved position.
     """
     check_method(convention, CONVENTIONS, "convention")
-    a = np.asarray(image)
+    a = check_array(image, "image", dtype=("float", "int", "bool"))
     if a.ndim not in (2, 3) or a.shape[0] == 0 or a.shape[1] == 0:
         raise InvalidInputError(f"image: expected a non-empty (H, W) or (H, W, C) array, got shape {a.shape}")
     if convention == "ours":
@@ -134,7 +135,7 @@ def to_convention(image: np.ndarray, convention: str) -> np.ndarray:
 def from_convention(image: np.ndarray, convention: str) -> np.ndarray:
     """The inverse of :func:`to_convention`: an ``image`` in ``convention``'s orientation in ours."""
     check_method(convention, CONVENTIONS, "convention")
-    a = np.asarray(image)
+    a = check_array(image, "image", dtype=("float", "int", "bool"))
     if a.ndim not in (2, 3) or a.shape[0] == 0 or a.shape[1] == 0:
         raise InvalidInputError(f"image: expected a non-empty (H, W) or (H, W, C) array, got shape {a.shape}")
     if convention == "ours":
@@ -256,7 +257,7 @@ def write_hdr(path: str | Path, radiance: np.ndarray, valid: np.ndarray | None =
         chunks.append(_rle_scanlines(np.ascontiguousarray(rgbe.transpose(0, 2, 1))))
     else:  # the format allows no run-length encoding at these widths: flat pixels
         chunks.append(rgbe.tobytes())
-    path = Path(path)
+    path = check_path(path)
     path.write_bytes(b"".join(chunks))
     return path
 
@@ -312,7 +313,7 @@ def read_hdr(path: str | Path) -> tuple[np.ndarray, dict[str, str]]:
     """
     import cv2
 
-    path = Path(path)
+    path = check_path(path)
     variables, exposure, H, W = _hdr_header(path)
     img = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
     if img is None or img.shape[:2] != (H, W) or img.ndim != 3 or img.shape[2] != 3:
@@ -362,7 +363,7 @@ def write_exr(path: str | Path, radiance: np.ndarray, valid: np.ndarray | None =
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage, _CONVENTION_KEY: convention}
     if origin is not None:
         header[_ORIGIN_KEY] = check_array(origin, "origin", shape=(3,), dtype=("float", "int"), finite=True).astype(np.float64)
-    path = Path(path)
+    path = check_path(path)
     with OpenEXR.File(header, channels) as f:
         f.write(str(path))
     return path
@@ -376,7 +377,7 @@ def read_exr(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
     """
     import OpenEXR
 
-    path = Path(path)
+    path = check_path(path)
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such file")
     try:
@@ -396,7 +397,7 @@ def read_exr(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
 
 def format_of(path: str | Path) -> str:
     """"hdr" or "exr" from ``path``'s extension (case-insensitive); InvalidInputError otherwise."""
-    ext = Path(path).suffix.lower().lstrip(".")
+    ext = check_path(path).suffix.lower().lstrip(".")
     if ext not in FORMATS:
         raise InvalidInputError(f"{path}: expected a .hdr or .exr file, got {Path(path).suffix or 'no extension'!r}")
     return ext
@@ -448,7 +449,7 @@ def read_envmap(path: str | Path, convention: str | None = None) -> EnvmapFile:
         InvalidInputError: a missing or unreadable file, an unknown convention, an EXR without colour
             channels, or a map with no finite pixel.
     """
-    path = Path(path)
+    path = check_path(path)
     fmt = format_of(path)
     if convention is not None:
         check_method(convention, CONVENTIONS, "convention")

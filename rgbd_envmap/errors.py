@@ -15,6 +15,7 @@ __all__ = [
     "NonFiniteError",
     "RangeError",
     "UnknownMethodError",
+    "FrameError",
     "LogFormatError",
 ]
 
@@ -45,6 +46,12 @@ class RangeError(InvalidInputError):
 
 class UnknownMethodError(InvalidInputError):
     """A method name is not one of the registered ones; the message lists the valid names."""
+
+
+class FrameError(InvalidInputError):
+    """A transform's frame names are not those the argument needs (``T_depth_from_world`` passed as a
+    packet's ``T_world_from_depth``); the message names the argument, the frames expected and given.
+    Unnamed frames (``""``) are taken as they come."""
 
 
 class LogFormatError(RgbdEnvmapError, ValueError):

@@ -24,9 +24,9 @@ from functools import lru_cache
 import numba
 import numpy as np
 
-from rgbd_envmap.checks import check_array, check_positive_int
+from rgbd_envmap.checks import check_array, check_instance, check_number, check_positive_int
 from rgbd_envmap.errors import InvalidInputError, RangeError
-from rgbd_envmap.types import Distortion, Intrinsics, RigidTransform
+from rgbd_envmap.types import Distortion, Intrinsics, RigidTransform, check_transform
 
 __all__ = [
     "brown_distort",
@@ -60,8 +60,10 @@ def brown_distort(x, y, k1, k2, p1, p2, k3):  # pragma: no cover - compiled
 
 
 def distort_normalized(xy: np.ndarray, distortion: Distortion) -> np.ndarray:
-    """Apply Brown distortion to (..., 2) normalised image coordinates (x/z, y/z), OpenCV's model."""
-    xy = np.asarray(xy, dtype=np.float64)
+    """Apply Brown distortion to (..., 2) normalised image coordinates (x/z, y/z), OpenCV's model.
+    A non-finite coordinate gives non-finite values in its own row only."""
+    xy = check_array(xy, "xy", shape=("*", 2), dtype=("float", "int")).astype(np.float64)
+    check_instance(distortion, Distortion, "distortion")
     if distortion.is_zero:
         return xy.copy()
     k1, k2, p1, p2, k3 = distortion.coefficients
@@ -76,8 +78,11 @@ def distort_normalized(xy: np.ndarray, distortion: Distortion) -> np.ndarray:
 def undistort_normalized(xy_distorted: np.ndarray, distortion: Distortion, iterations: int = 20) -> np.ndarray:
     """Invert :func:`distort_normalized` for (..., 2) coordinates by Newton's method with the
     analytic Jacobian (converges to ~1e-15 in a few steps for lens-like coefficients; OpenCV's
-    ``undistortPoints`` uses a fixed-point iteration that stops at ~1e-6)."""
-    target = np.asarray(xy_distorted, dtype=np.float64)
+    ``undistortPoints`` uses a fixed-point iteration that stops at ~1e-6). A non-finite coordinate
+    gives non-finite values in its own row only; ``iterations`` is an integer in [0, 1000]."""
+    target = check_array(xy_distorted, "xy_distorted", shape=("*", 2), dtype=("float", "int")).astype(np.float64)
+    check_instance(distortion, Distortion, "distortion")
+    iterations = check_number(iterations, "iterations", low=0, high=1000, integer=True)
     if distortion.is_zero or target.size == 0:
         return target.copy()
     k1, k2, p1, p2, k3 = distortion.coefficients
@@ -113,6 +118,7 @@ def project_points(points_cam: np.ndarray, intrinsics: Intrinsics) -> tuple[np.n
         in_front: (N,) bool, True where z > 0 and the point is finite.
     """
     p = check_array(points_cam, "points_cam", shape=("N", 3), dtype=("float", "int")).astype(np.float64)
+    check_instance(intrinsics, Intrinsics, "intrinsics")
     z = p[:, 2]
     in_front = np.isfinite(p).all(axis=1) & (z > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -126,7 +132,9 @@ def project_points(points_cam: np.ndarray, intrinsics: Intrinsics) -> tuple[np.n
 
 
 def unproject_pixels(uv: np.ndarray, depth_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
-    """Lift (N, 2) pixel coordinates with (N,) z-depths (metres) to (N, 3) camera-frame points."""
+    """Lift (N, 2) pixel coordinates with (N,) z-depths (metres) to (N, 3) camera-frame points. A
+    non-finite coordinate or depth gives non-finite values in its own row only."""
+    check_instance(intrinsics, Intrinsics, "intrinsics")
     uv = check_array(uv, "uv", shape=("N", 2), dtype=("float", "int")).astype(np.float64)
     z = check_array(depth_m, "depth_m", shape=(uv.shape[0],), dtype=("float", "int")).astype(np.float64)
     xyd = np.stack([(uv[:, 0] - intrinsics.cx) / intrinsics.fx, (uv[:, 1] - intrinsics.cy) / intrinsics.fy], axis=-1)
@@ -146,23 +154,24 @@ def _pixel_rays_cached(intrinsics: Intrinsics) -> np.ndarray:
 def pixel_rays(intrinsics: Intrinsics) -> np.ndarray:
     """(H, W, 3) float64 camera-frame rays through each pixel centre, scaled to z = 1 (so a z-depth
     times the ray is the point). Cached per intrinsics; the array is read-only."""
+    check_instance(intrinsics, Intrinsics, "intrinsics")
     return _pixel_rays_cached(intrinsics)
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> RigidTransform:
     """``T_world_from_cam`` of an OpenCV camera at ``eye`` looking at ``target`` with world ``up``
     pointing towards the image top."""
-    eye = check_array(eye, "eye", shape=(3,), finite=True).astype(np.float64)
-    target = check_array(target, "target", shape=(3,), finite=True).astype(np.float64)
-    up = check_array(up, "up", shape=(3,), finite=True).astype(np.float64)
+    eye = check_array(eye, "eye", shape=(3,), dtype=("float", "int"), finite=True).astype(np.float64)
+    target = check_array(target, "target", shape=(3,), dtype=("float", "int"), finite=True).astype(np.float64)
+    up = check_array(up, "up", shape=(3,), dtype=("float", "int"), finite=True).astype(np.float64)
     forward = target - eye
     n = np.linalg.norm(forward)
     if n < 1e-12:
-        raise InvalidInputError("look_at: eye and target coincide")
+        raise InvalidInputError(f"target: expected a point other than eye, got {target} (eye {eye})")
     forward /= n
     right = np.cross(forward, up)
     if np.linalg.norm(right) < 1e-9:
-        raise InvalidInputError("look_at: viewing direction is parallel to up")
+        raise InvalidInputError(f"up: expected a direction not parallel to target − eye, got {up}")
     right /= np.linalg.norm(right)
     down = np.cross(forward, right)
     return RigidTransform.from_rt(np.stack([right, down, forward], axis=1), eye, "world", "cam")
@@ -171,6 +180,7 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0
 def opengl_from_opencv(T_world_from_cam: RigidTransform) -> RigidTransform:
     """The same camera pose with OpenGL camera axes (x right, y up, looking down −z), as rasterisers
     such as pyrender expect."""
+    check_transform(T_world_from_cam, "T_world_from_cam", "world")
     return RigidTransform(T_world_from_cam.matrix @ _CV_TO_GL, T_world_from_cam.dst, "cam_gl")
 
 
@@ -242,7 +252,8 @@ def directions_to_equirect(dirs: np.ndarray, height: int, width: int) -> np.ndar
 
 
 def equirect_to_directions(uv: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Inverse of :func:`directions_to_equirect`: (..., 2) (u, v) → (..., 3) float64 unit directions."""
+    """Inverse of :func:`directions_to_equirect`: (..., 2) (u, v) → (..., 3) float64 unit directions;
+    a non-finite (u, v) gives a non-finite direction in its own row only."""
     height, width = _check_equirect_size(height, width)
     uv = check_array(uv, "uv", shape=("*", 2), dtype=("float", "int")).astype(np.float64)
     theta = np.pi * (uv[..., 1] + 0.5) / height

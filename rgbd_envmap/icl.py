@@ -38,7 +38,7 @@ from pathlib import Path
 from rgbd_envmap.checks import check_method, check_number
 from rgbd_envmap.errors import InvalidInputError, LogFormatError
 from rgbd_envmap.logs import parse_timestamp, read_timestamped_table
-from rgbd_envmap.tum import TUM_DEPTH_SCALE, TumAssociation, TumSequence, TumTrajectory
+from rgbd_envmap.tum import TUM_DEPTH_SCALE, TumAssociation, TumSequence, open_trajectory
 from rgbd_envmap.types import Intrinsics
 
 __all__ = ["ICL_NUIM_INTRINSICS", "ASSOCIATIONS", "TRAJECTORY_SUFFIX", "is_icl_nuim_sequence", "icl_nuim_trajectory",
@@ -119,7 +119,8 @@ def read_icl_nuim_sequence(path: str | Path, *, max_dt_s: float = 0.02, poses: s
         poses: ``"nearest"`` or ``"linear"``, as in :func:`rgbd_envmap.tum.read_tum_sequence`.
         intrinsics: overrides :data:`ICL_NUIM_INTRINSICS`.
         depth_scale: depth PNG units per metre (> 0; the dataset's 5000).
-        trajectory: a TUM-format pose file instead of the folder's ``*.gt.freiburg``.
+        trajectory: a pose file instead of the folder's ``*.gt.freiburg``: TUM format, or ``.log``
+            (block ``i``: the ``i``-th pair of associations.txt in depth-time order, from 0).
 
     Returns:
         A :class:`~rgbd_envmap.tum.TumSequence` (its frames load like a TUM sequence's; errors name
@@ -142,12 +143,12 @@ def read_icl_nuim_sequence(path: str | Path, *, max_dt_s: float = 0.02, poses: s
         raise InvalidInputError(f"intrinsics: expected an Intrinsics, got {type(intrinsics).__name__}")
     rows = _read_associations(root)
     trajectory_path = icl_nuim_trajectory(root) if trajectory is None else Path(trajectory)
-    track = TumTrajectory(trajectory_path)
+    track = open_trajectory(trajectory_path)
     max_dt_ns = round(max_dt_s * 1e9)
     frames: list[TumAssociation] = []
     skipped = {"no_rgb": 0, "no_pose": 0, "rgb_unused": 0}
-    for lineno, d_ns, d_path, c_ns, c_path in rows:
-        pose = track.pose_at(d_ns, max_dt_ns, poses)
+    for index, (lineno, d_ns, d_path, c_ns, c_path) in enumerate(rows):
+        pose = track.pose_at(d_ns, max_dt_ns, poses, index=index)
         if pose is None:
             skipped["no_pose"] += 1
             continue

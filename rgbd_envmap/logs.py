@@ -42,8 +42,8 @@ import numpy as np
 from rgbd_envmap.errors import InvalidInputError, LogFormatError, RgbdEnvmapError, ShapeError
 from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, RigidTransform
 
-__all__ = ["SessionWriter", "SessionLog", "as_logged", "read_timestamped_table", "read_tum_trajectory", "format_timestamp",
-           "parse_timestamp", "QUATERNION_NORM_TOL"]
+__all__ = ["SessionWriter", "SessionLog", "as_logged", "read_timestamped_table", "read_tum_trajectory", "read_log_trajectory",
+           "trajectory_format", "format_timestamp", "parse_timestamp", "QUATERNION_NORM_TOL", "LOG_ROTATION_TOL"]
 
 FORMAT, VERSION = "rgbd-envmap-session", 1
 KINDS = ("depth", "colour")
@@ -120,6 +120,100 @@ def read_tum_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]
         values.append(v)
     arr = np.array(values, dtype=np.float64).reshape(-1, 7)
     return np.array(stamps, dtype=np.int64), arr[:, :3], arr[:, 3:]
+
+
+#: largest max |RᵀR − I| of a ``.log`` pose's rotation (files print 6 to 8 decimals); within it the
+#: rotation is made orthonormal (nearest rotation, by SVD), beyond it the pose is refused.
+LOG_ROTATION_TOL = 1e-3
+
+
+def _nearest_rotation(r: np.ndarray) -> np.ndarray:
+    u, _, vt = np.linalg.svd(r)
+    out = u @ vt
+    if np.linalg.det(out) < 0:
+        u[:, -1] *= -1
+        out = u @ vt
+    return out
+
+
+def read_log_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A trajectory in the ``.log`` format of the Redwood / Augmented ICL-NUIM data (the one Open3D's
+    ``read_pinhole_camera_trajectory`` reads): per frame a metadata line of three integers
+    (``frame frame frame+1`` as written: the first is the frame's index) and then four lines of the
+    4×4 matrix ``T_world_from_cam`` (camera to world, OpenCV camera axes), blank lines ignored.
+
+    Returns:
+        (N,) int64 frame indices (the first metadata number; unique) and (N, 4, 4) float64 matrices,
+        their rotations made orthonormal (:data:`LOG_ROTATION_TOL`) and last rows exactly [0, 0, 0, 1].
+
+    Raises:
+        LogFormatError: naming the file and line of a malformed block (metadata not three integers, a
+            row not four numbers, NaN, a last row other than [0, 0, 0, 1], a rotation off by more than
+            :data:`LOG_ROTATION_TOL`, a repeated frame index, or a truncated last block).
+    """
+    lines = [(n, line.split()) for n, line in enumerate(_read_bytes(path).decode("utf-8", "replace").splitlines(), start=1)]
+    lines = [(n, f) for n, f in lines if f]
+    if len(lines) % 5:
+        raise LogFormatError(f"{path}, line {lines[-1][0]}: truncated .log trajectory ({len(lines)} non-empty lines; "
+                             "expected 5 per frame: a metadata line and four matrix rows)")
+    ids, mats, where_id = [], [], {}
+    for b in range(0, len(lines), 5):
+        lineno, meta = lines[b]
+        if len(meta) != 3 or not all(re.fullmatch(r"[+-]?[0-9]+", x) for x in meta):
+            raise LogFormatError(f"{path}, line {lineno}: expected a metadata line of three integers "
+                                 f"(frame frame frame+1), got {' '.join(meta)!r}")
+        m = np.empty((4, 4))
+        for r in range(4):
+            row_no, row = lines[b + 1 + r]
+            if len(row) != 4:
+                raise LogFormatError(f"{path}, line {row_no}: expected a matrix row of 4 numbers, got {len(row)}: "
+                                     f"{' '.join(row)!r}")
+            try:
+                m[r] = [float(x) for x in row]
+            except ValueError:
+                raise LogFormatError(f"{path}, line {row_no}: matrix values must be numbers, got {' '.join(row)!r}") from None
+        if not np.isfinite(m).all():
+            raise LogFormatError(f"{path}, lines {lines[b + 1][0]}-{lines[b + 4][0]}: the matrix holds NaN or inf")
+        if np.abs(m[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-6:
+            raise LogFormatError(f"{path}, line {lines[b + 4][0]}: the last matrix row must be 0 0 0 1, got {m[3].tolist()}")
+        rot = m[:3, :3]
+        err = float(np.abs(rot.T @ rot - np.eye(3)).max())
+        if err > LOG_ROTATION_TOL or np.linalg.det(rot) <= 0:
+            raise LogFormatError(f"{path}, lines {lines[b + 1][0]}-{lines[b + 3][0]}: not a rotation (max |RᵀR − I| = "
+                                 f"{err:.3g}, det = {np.linalg.det(rot):.4g}; tolerance {LOG_ROTATION_TOL})")
+        m[:3, :3] = _nearest_rotation(rot)
+        m[3] = [0.0, 0.0, 0.0, 1.0]
+        frame = int(meta[0])
+        if frame in where_id:
+            raise LogFormatError(f"{path}, line {lineno}: frame {frame} repeats the block at line {where_id[frame]}")
+        where_id[frame] = lineno
+        ids.append(frame)
+        mats.append(m)
+    return np.array(ids, dtype=np.int64), np.array(mats, dtype=np.float64).reshape(-1, 4, 4)
+
+
+def trajectory_format(path: Path) -> str:
+    """``"tum"`` or ``"log"``: the format of a trajectory file, told by its first data line (TUM: eight
+    fields, ``timestamp tx ty tz qx qy qz qw``, ``#`` comments; ``.log``: three integers), not by its
+    name (Augmented ICL-NUIM names its ``.log`` trajectories ``*-traj.txt``).
+
+    A file without data lines counts as TUM (no poses).
+
+    Raises:
+        LogFormatError: the file is missing, or its first data line is neither.
+    """
+    for lineno, line in enumerate(_read_bytes(path).decode("utf-8", "replace").splitlines(), start=1):
+        fields = line.split()
+        if not fields or fields[0].startswith("#"):
+            continue
+        if len(fields) == 8:
+            return "tum"
+        if len(fields) == 3:
+            return "log"
+        raise LogFormatError(f"{path}, line {lineno}: not a trajectory: expected TUM format (timestamp tx ty tz qx qy qz qw) "
+                             f"or the .log format (a line 'frame frame frame+1', then four rows of a 4×4 matrix), "
+                             f"got {len(fields)} fields")
+    return "tum"  # no data line: an empty TUM trajectory (every frame then lacks a pose, and is counted)
 
 
 def _read_poses(path: Path, kind: str) -> dict[int, RigidTransform]:

@@ -160,7 +160,7 @@ def ws_psnr(a: np.ndarray, b: np.ndarray, valid: np.ndarray | None = None, peak:
             float64 whatever the input dtype (uint8 does not wrap around).
         valid: (H, W) bool, the pixels that take part (e.g. ``em.valid & truth.valid``); all when
             ``None``. Values at invalid pixels are ignored and may be NaN.
-        peak: the signal peak, > 0 and finite: 1.0 for maps in [0, 1], 255 for 8-bit. Radiance is
+        peak: the signal peak, in (0, 1e150]: 1.0 for maps in [0, 1], 255 for 8-bit. Radiance is
             unbounded above, so for HDR maps pick a peak and report it beside the figure.
 
     Returns:
@@ -182,7 +182,7 @@ def ws_psnr(a: np.ndarray, b: np.ndarray, valid: np.ndarray | None = None, peak:
     h, w, c = a.shape
     if valid is not None:
         valid = _check_mask(valid, "valid", (h, w))
-    peak = check_number(peak, "peak", low=0.0, low_open=True)
+    peak = check_number(peak, "peak", low=0.0, low_open=True, high=1e150)  # peak² stays finite
 
     num = den = 0.0
     with np.errstate(over="ignore", invalid="ignore"):

@@ -80,7 +80,7 @@ from rgbd_envmap import sh
 from rgbd_envmap._kernels import prt as kernels
 from rgbd_envmap.assets import VirtualObject
 from rgbd_envmap.cache import atomic_write_bytes, default_cache_dir
-from rgbd_envmap.checks import check_array, check_method, check_positive_int
+from rgbd_envmap.checks import check_array, check_method, check_number, check_positive_int, check_range
 from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError, ShapeError
 
 __all__ = [
@@ -96,6 +96,7 @@ __all__ = [
     "sphere_directions",
     "transfer_cache_path",
     "unoccluded_transfer",
+    "MAX_PRT_DIRS",
 ]
 
 ESTIMATORS = ("occluded", "direct")
@@ -114,11 +115,26 @@ _ALPHA_TINY = 1e-6  # E_without below this fraction of π × the mean environmen
 
 # --- directions and closed forms ----------------------------------------------------------------------
 
+#: The most directions a transfer is computed with: 2**20 (the lattice alone is 24 MiB of float64;
+#: the default is 1,024).
+MAX_PRT_DIRS = 2**20
+
+
+def _check_dirs(n_dirs: object) -> int:
+    n_dirs = check_positive_int(n_dirs, "n_dirs")
+    if n_dirs > MAX_PRT_DIRS:
+        raise RangeError(f"n_dirs: expected at most {MAX_PRT_DIRS:,} directions, got {n_dirs:,}; the lattice "
+                         f"alone would take about {n_dirs * 24 / 2**30:.3g} GiB")
+    return n_dirs
+
+
 def sphere_directions(n_dirs: int, seed: int | None = 0) -> np.ndarray:
     """(n_dirs, 3) float64 unit directions: a spherical Fibonacci lattice (equal-area points,
     z_i = 1 − (2i + 1)/N, φ_i = 2π i / golden ratio), rotated by a random rotation drawn from ``seed``
-    (None: not rotated). Each direction stands for 4π / n_dirs steradians."""
-    n_dirs = check_positive_int(n_dirs, "n_dirs")
+    (None: not rotated). Each direction stands for 4π / n_dirs steradians. ``n_dirs`` is at most
+    :data:`MAX_PRT_DIRS`; ``seed`` is an integer ≥ 0 or None."""
+    n_dirs = _check_dirs(n_dirs)
+    seed = check_number(seed, "seed", low=0, integer=True, optional=True)
     i = np.arange(n_dirs, dtype=np.float64)
     z = 1.0 - (2.0 * i + 1.0) / n_dirs
     phi = 2.0 * math.pi * np.mod(i * (2.0 / (1.0 + math.sqrt(5.0))), 1.0)
@@ -146,6 +162,7 @@ def unoccluded_transfer(normals: np.ndarray, bands: int = 5) -> np.ndarray:
         (..., bands²) float64.
     """
     bands = check_positive_int(bands, "bands")
+    normals = check_array(normals, "normals", shape=("*", 3), dtype=("float", "int"))
     a = sh.lambertian_band_factors(bands)[_l_of_k(bands)]
     return sh.basis(normals, bands) * a
 
@@ -216,7 +233,7 @@ def compute_transfer(vertices: np.ndarray, normals: np.ndarray, faces: np.ndarra
         0.88623
     """
     bands = check_positive_int(bands, "bands")
-    n_dirs = check_positive_int(n_dirs, "n_dirs")
+    n_dirs = _check_dirs(n_dirs)
     check_method(estimator, ESTIMATORS, "estimator")
     v, n, f = _validate_mesh(vertices, normals, faces)
     occluders = [_as_mesh(item, i) for i, item in enumerate(occluder_meshes)]
@@ -341,7 +358,7 @@ def load_or_compute(obj: VirtualObject, bands: int = 5, *, n_dirs: int = 1024, s
     if not isinstance(obj, VirtualObject):
         raise DTypeError(f"obj: expected a VirtualObject, got {type(obj).__name__}")
     bands = check_positive_int(bands, "bands")
-    n_dirs = check_positive_int(n_dirs, "n_dirs")
+    n_dirs = _check_dirs(n_dirs)
     check_method(estimator, ESTIMATORS, "estimator")
 
     def compute() -> np.ndarray:
@@ -401,7 +418,9 @@ def plane_grid(size_m: float, resolution: int) -> tuple[np.ndarray, np.ndarray]:
     """The shadow plane's grid: ``resolution`` × ``resolution`` vertices on z = 0 spanning
     [−size_m / 2, size_m / 2]² (row-major from (−s/2, −s/2): row j has y = t[j], column i x = t[i]),
     as (P, 3) float32 vertices and (2 (resolution − 1)², 3) int32 faces, counter-clockwise seen from
-    +z. No checks: :func:`shadow_plane` checks its arguments."""
+    +z. ``size_m`` in (0, 1e6] metres, ``resolution`` an integer in [2, 4096]."""
+    size_m = check_number(size_m, "size_m", low=0.0, low_open=True, high=1e6)
+    resolution = check_number(resolution, "resolution", low=2, high=4096, integer=True)
     t = np.linspace(-size_m / 2, size_m / 2, resolution)
     gx, gy = np.meshgrid(t, t)  # row j: y = t[j]; column i: x = t[i]
     vertices = np.stack([gx.ravel(), gy.ravel(), np.zeros(resolution * resolution)], axis=1).astype(np.float32)
@@ -432,7 +451,7 @@ def shadow_plane(obj: VirtualObject, *, size_m: float | None = None, resolution:
     if not isinstance(obj, VirtualObject):
         raise DTypeError(f"obj: expected a VirtualObject, got {type(obj).__name__}")
     bands = check_positive_int(bands, "bands")
-    n_dirs = check_positive_int(n_dirs, "n_dirs")
+    n_dirs = _check_dirs(n_dirs)
     resolution = check_positive_int(resolution, "resolution")
     if resolution < 2:
         raise RangeError(f"resolution: expected at least 2 vertices per side, got {resolution}")
@@ -484,11 +503,12 @@ def shade(transfer: np.ndarray, coeffs: np.ndarray, albedo, *, out: np.ndarray |
         transfer: (V, m²) float transfer vectors (float32 C-contiguous is the fast path; a column
             slice such as ``transfer[:, :16]`` works too).
         coeffs: (n², 3) linear RGB SH radiance coefficients, finite.
-        albedo: (3,) linear RGB or a scalar, finite.
+        albedo: (3,) linear RGB or a scalar, in [0, 1e6] (1 is white; larger values only scale).
         out: optional (V, 3) float32 C-contiguous array to write into.
 
     Returns:
-        (V, 3) float32 linear radiance. Only the first min(m², n²) coefficients are used, so a 5-band
+        (V, 3) float32 linear radiance. ``transfer`` is not checked for NaN (it is the cached PRT, a
+        (V, m²) read per frame): a vertex with a NaN transfer gets NaN radiance, only that vertex. Only the first min(m², n²) coefficients are used, so a 5-band
         transfer shades with 3-band lighting (and vice versa) as a truncation to the smaller band count.
 
     Example:
@@ -504,6 +524,7 @@ def shade(transfer: np.ndarray, coeffs: np.ndarray, albedo, *, out: np.ndarray |
     a = check_array(albedo, "albedo", dtype=("float", "int"), finite=True)
     if a.shape not in ((), (3,)):
         raise ShapeError(f"albedo: expected shape () or (3,), got {a.shape}")
+    check_range(a, "albedo", 0.0, 1e6)
     K = min(T.shape[1], L.shape[0])
     if T.dtype != np.float32:
         T = T.astype(np.float32)

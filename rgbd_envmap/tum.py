@@ -35,7 +35,9 @@ published depth images are already pre-scaled, so the default is 1 and the facto
 recordings of those cameras (it multiplies the metric depth).
 
 Poses come from ``groundtruth.txt`` or from any trajectory file in the same format (``trajectory=``, an
-estimated trajectory), both read by :func:`rgbd_envmap.logs.read_tum_trajectory`.
+estimated trajectory), both read by :func:`rgbd_envmap.logs.read_tum_trajectory`, or from a ``.log``
+trajectory (:class:`LogTrajectory`: one matrix per frame number, frame ``i`` being the ``i``-th line of
+``depth.txt``).
 
 Association (:func:`read_tum_sequence`): the depth image is the frame's clock. Depth and colour images
 are paired as the benchmark's ``associate.py`` pairs them: among all pairs within ``max_dt_s``, greedily
@@ -83,7 +85,7 @@ from rgbd_envmap.errors import (
     RangeError,
     RgbdEnvmapError,
 )
-from rgbd_envmap.logs import read_timestamped_table, read_tum_trajectory
+from rgbd_envmap.logs import read_log_trajectory, read_timestamped_table, read_tum_trajectory, trajectory_format
 from rgbd_envmap.types import Calibration, Distortion, Intrinsics, RigidTransform
 
 __all__ = [
@@ -95,6 +97,8 @@ __all__ = [
     "TumFrame",
     "TumSequence",
     "TumTrajectory",
+    "LogTrajectory",
+    "open_trajectory",
     "read_tum_sequence",
     "tum_camera_from_name",
     "write_tum_sequence",
@@ -212,14 +216,15 @@ class TumSequence:
             ``"calibration.json"`` or ``"given"``, and why it was chosen, in words.
         depth_scale: PNG units per metre; depth_correction: factor on the metric depth.
         trajectory: the pose file read (``groundtruth.txt`` unless another was given).
-        index_names: the index files that name the depth and colour images (for error messages).
+        index_names: the index files that name the depth and colour images (for error messages); None
+            for a folder of numbered images (errors then name the frame number).
     """
 
     def __init__(self, root: Path, intrinsics: Intrinsics, calibration: Calibration | None, frames: list[TumAssociation],
                  skipped: dict[str, int], max_dt_s: float, poses: str, *,
                  intrinsics_source: tuple[str, str] = ("given", "given by the caller"),
                  depth_scale: float = TUM_DEPTH_SCALE, depth_correction: float = 1.0,
-                 trajectory: Path | None = None, index_names: tuple[str, str] = ("depth.txt", "rgb.txt")) -> None:
+                 trajectory: Path | None = None, index_names: tuple[str, str] | None = ("depth.txt", "rgb.txt")) -> None:
         """Use :func:`read_tum_sequence` (or :func:`rgbd_envmap.icl.read_icl_nuim_sequence`)."""
         self.root, self.intrinsics, self.calibration = root, intrinsics, calibration
         self.frames, self.skipped, self.max_dt_s, self.poses = frames, skipped, max_dt_s, poses
@@ -262,14 +267,17 @@ class TumSequence:
         """
         a = self.frames[i]
         h, w = self.intrinsics.shape
-        d_where, c_where = f"{self.index_names[0]} line {a.depth_line}", f"{self.index_names[1]} line {a.rgb_line}"
+        if self.index_names is None:  # a folder of numbered images (Redwood): no index file to name
+            d_where = c_where = f"frame {a.depth_line - 1}"
+        else:
+            d_where, c_where = f"{self.index_names[0]} line {a.depth_line}", f"{self.index_names[1]} line {a.rgb_line}"
         depth = _read_png(a.depth_path, d_where)
         if depth.dtype != np.uint16 or depth.ndim != 2:
             raise LogFormatError(f"{a.depth_path} ({d_where}): expected a single-channel 16-bit depth PNG, "
                                  f"got dtype {depth.dtype} with shape {depth.shape}")
         if depth.shape != (h, w):
             raise LogFormatError(f"{a.depth_path} ({d_where}): expected {h}×{w} from the intrinsics, got {depth.shape}")
-        bgr = _read_png(a.rgb_path, c_where)
+        bgr = _read_png(a.rgb_path, c_where, jpeg=True)
         if bgr.dtype != np.uint8 or bgr.ndim != 3 or bgr.shape[2] != 3:
             raise LogFormatError(f"{a.rgb_path} ({c_where}): expected an 8-bit 3-channel colour PNG, "
                                  f"got dtype {bgr.dtype} with shape {bgr.shape}")
@@ -291,13 +299,17 @@ def _read_bytes(path: Path, where: str = "") -> bytes:
         raise LogFormatError(f"{path}{f' ({where})' if where else ''}: {why}") from None
 
 
-def _read_png(path: Path, where: str) -> np.ndarray:
+def _read_png(path: Path, where: str, *, jpeg: bool = False) -> np.ndarray:
+    """A PNG (or with ``jpeg`` also a JPEG: the Redwood data's colour images) decoded as stored."""
     data = _read_bytes(path, where)
-    if not data.startswith(b"\x89PNG\r\n\x1a\n"):
-        raise LogFormatError(f"{path} ({where}): not a PNG file")
+    is_jpeg = jpeg and data.startswith(b"\xff\xd8\xff")
+    if not (data.startswith(b"\x89PNG\r\n\x1a\n") or is_jpeg):
+        raise LogFormatError(f"{path} ({where}): not a PNG{' or JPEG' if jpeg else ''} file")
+    if is_jpeg and not data.rstrip(b"\x00").endswith(b"\xff\xd9"):  # libjpeg pads a truncated file and says nothing
+        raise LogFormatError(f"{path} ({where}): truncated JPEG (no end-of-image marker)")
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)  # libpng rejects truncation and CRC errors
     if img is None:
-        raise LogFormatError(f"{path} ({where}): unreadable, truncated or corrupt PNG")
+        raise LogFormatError(f"{path} ({where}): unreadable, truncated or corrupt {'JPEG' if is_jpeg else 'PNG'}")
     return img
 
 
@@ -326,6 +338,8 @@ class TumTrajectory:
         LogFormatError: the file is missing or malformed (naming the file and line).
     """
 
+    format = "tum"
+
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.timestamps_ns, self.translations, self.quaternions = _read_groundtruth(self.path)
@@ -333,13 +347,53 @@ class TumTrajectory:
     def __len__(self) -> int:
         return len(self.timestamps_ns)
 
-    def pose_at(self, timestamp_ns: int, max_dt_ns: int, method: str = "nearest") -> tuple[RigidTransform, int] | None:
+    def pose_at(self, timestamp_ns: int, max_dt_ns: int, method: str = "nearest", index: int | None = None
+                ) -> tuple[RigidTransform, int] | None:
         """The pose at ``timestamp_ns`` as ``(T_world_from_cam, pose time − timestamp_ns)``, or None
         when no pose lies within ``max_dt_ns``: the nearest pose (``"nearest"``) or the one
         interpolated between the two poses around it, each within ``max_dt_ns`` (``"linear"``: linear
-        in translation, slerp in rotation; the time offset is then 0)."""
+        in translation, slerp in rotation; the time offset is then 0). ``index`` (the frame's number)
+        is not used: a TUM trajectory is looked up by time."""
         check_method(method, _POSE_METHODS, "poses")
         return _pose_at(int(timestamp_ns), self.timestamps_ns, self.translations, self.quaternions, int(max_dt_ns), method)
+
+
+class LogTrajectory:
+    """A trajectory file in the ``.log`` format (:func:`rgbd_envmap.logs.read_log_trajectory`: one
+    4×4 T_world_from_cam per frame index), for pose look-ups by frame number.
+
+    Raises:
+        LogFormatError: the file is missing or malformed (naming the file and line).
+    """
+
+    format = "log"
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.frame_ids, self.matrices = read_log_trajectory(self.path)
+        self._by_id = {int(k): j for j, k in enumerate(self.frame_ids)}
+
+    def __len__(self) -> int:
+        return len(self.frame_ids)
+
+    def pose_at(self, timestamp_ns: int, max_dt_ns: int, method: str = "nearest", index: int | None = None
+                ) -> tuple[RigidTransform, int] | None:
+        """``(T_world_from_cam, 0)`` of frame ``index`` (its position in the sequence, from 0), or None
+        when the file has no block for it; the time arguments are not used (a ``.log`` names frames,
+        not times)."""
+        check_method(method, _POSE_METHODS, "poses")
+        if index is None:
+            raise InvalidInputError("index: a .log trajectory is looked up by frame number, got None")
+        j = self._by_id.get(int(index))
+        return None if j is None else (RigidTransform(self.matrices[j], *_FRAME_NAMES), 0)
+
+
+def open_trajectory(path: str | Path) -> TumTrajectory | LogTrajectory:
+    """The trajectory file ``path`` in either format it may have, told by its content
+    (:func:`rgbd_envmap.logs.trajectory_format`): TUM RGB-D (looked up by time) or ``.log`` (by frame
+    number: frame ``i`` is the ``i``-th frame of the sequence, from 0, in the order it is read)."""
+    path = Path(path)
+    return LogTrajectory(path) if trajectory_format(path) == "log" else TumTrajectory(path)
 
 
 def _read_calibration(path: Path) -> Calibration:
@@ -423,8 +477,9 @@ def read_tum_sequence(path: str | Path, *, max_dt_s: float = 0.02, poses: str = 
         depth_scale: depth PNG units per metre (> 0; the benchmark's 5000).
         depth_correction: factor on the metric depth (> 0; e.g. ``TUM_DEPTH_CORRECTION["fr1"]`` for a
             freiburg1 recording that does not carry it yet; 1 for the published images).
-        trajectory: a TUM-format pose file to use instead of ``groundtruth.txt`` (e.g. an estimated
-            trajectory); a relative path is relative to the working directory.
+        trajectory: a pose file to use instead of ``groundtruth.txt`` (e.g. an estimated trajectory), in
+            TUM format or the ``.log`` format (:func:`open_trajectory`; a ``.log`` block ``i`` is the
+            ``i``-th line of depth.txt, from 0); a relative path is relative to the working directory.
 
     Returns:
         A :class:`TumSequence`; images are read when a frame is loaded.
@@ -466,7 +521,7 @@ def read_tum_sequence(path: str | Path, *, max_dt_s: float = 0.02, poses: str = 
     depth = _read_images(root, "depth.txt")
     rgb = _read_images(root, "rgb.txt")
     trajectory_path = root / "groundtruth.txt" if trajectory is None else Path(trajectory)
-    track = TumTrajectory(trajectory_path)
+    track = open_trajectory(trajectory_path)
     max_dt_ns = round(max_dt_s * 1e9)
     pairs = _associate(depth, rgb, max_dt_ns)
     frames: list[TumAssociation] = []
@@ -474,7 +529,7 @@ def read_tum_sequence(path: str | Path, *, max_dt_s: float = 0.02, poses: str = 
     for i in sorted(pairs):
         d_line, d_ns, d_path = depth[i]
         c_line, c_ns, c_path = rgb[pairs[i]]
-        pose = track.pose_at(d_ns, max_dt_ns, poses)
+        pose = track.pose_at(d_ns, max_dt_ns, poses, index=i)
         if pose is None:
             skipped["no_pose"] += 1
             continue

@@ -20,8 +20,10 @@ from typing import Union
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from rgbd_envmap.checks import check_array, check_range
-from rgbd_envmap.errors import InvalidInputError, NonFiniteError, RangeError
+from collections.abc import Mapping
+
+from rgbd_envmap.checks import check_array, check_instance, check_number, check_range
+from rgbd_envmap.errors import DTypeError, FrameError, InvalidInputError, NonFiniteError, RangeError, ShapeError
 
 __all__ = [
     "Distortion",
@@ -33,10 +35,52 @@ __all__ = [
     "Calibration",
     "RGBDFrame",
     "ORTHONORMAL_TOL",
+    "MAX_IMAGE_PIXELS",
+    "check_transform",
 ]
 
 #: Largest accepted deviation of R^T R from the identity (and of det R from 1).
 ORTHONORMAL_TOL = 1e-6
+
+#: The largest image an :class:`Intrinsics` may describe: 2**26 pixels (64 Mpx, 8192 × 8192). The
+#: per-pixel ray table alone (H × W × 3 float32) is 768 MiB at the bound.
+MAX_IMAGE_PIXELS = 2**26
+
+
+def _finite_float(value: object, name: str) -> float:
+    """``value`` as a float: a :class:`DTypeError` unless it is a real number (not a bool or a
+    string), a :class:`NonFiniteError` for NaN or infinity."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise DTypeError(f"{name}: expected a number, got {value!r}")
+    value = float(value)
+    if not np.isfinite(value):
+        raise NonFiniteError(f"{name}: expected a finite value, got {value}")
+    return value
+
+
+def _timestamp(value: object, name: str) -> int:
+    return int(check_number(value, name, integer=True))
+
+
+def _mapping_get(d: Mapping, key: str, name: str) -> object:
+    if key not in d:
+        raise InvalidInputError(f"{name}: expected a key {key!r}, got keys {sorted(map(str, d))}")
+    return d[key]
+
+
+def check_transform(value: object, name: str, dst: str | None = None, src: str | tuple[str, ...] | None = None,
+                    ) -> "RigidTransform":
+    """Return ``value`` after checking that it is a :class:`RigidTransform` (:class:`DTypeError`) whose
+    named frames are ``dst`` and ``src`` (a tuple: any of them), raising :class:`FrameError` otherwise.
+    An unnamed frame (``""``) is taken as it comes, so a transform built without names passes.
+    Costs about 1 µs."""
+    if not isinstance(value, RigidTransform):
+        raise DTypeError(f"{name}: expected a RigidTransform, got {type(value).__name__}")
+    srcs = (src,) if isinstance(src, str) else src
+    if (dst is not None and value.dst and value.dst != dst) or (srcs is not None and value.src and value.src not in srcs):
+        want = f"T_{dst or '*'}_from_{'|'.join(srcs) if srcs else '*'}"
+        raise FrameError(f"{name}: expected {want}, got T_{value.dst or '?'}_from_{value.src or '?'}")
+    return value
 
 
 def _frozen_array(obj: object, name: str, arr: np.ndarray) -> None:
@@ -79,10 +123,7 @@ class Distortion:
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
-            value = float(getattr(self, f.name))
-            if not np.isfinite(value):
-                raise NonFiniteError(f"Distortion.{f.name}: expected a finite value, got {value}")
-            object.__setattr__(self, f.name, value)
+            object.__setattr__(self, f.name, _finite_float(getattr(self, f.name), f"Distortion.{f.name}"))
 
     @classmethod
     def radial(cls, k1: float, k2: float, k3: float) -> "Distortion":
@@ -127,13 +168,15 @@ class Intrinsics:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise RangeError(f"Intrinsics.{name}: expected a positive integer, got {value!r}")
             object.__setattr__(self, name, int(value))
+        if self.width * self.height > MAX_IMAGE_PIXELS:
+            raise RangeError(f"Intrinsics.width×height: expected at most {MAX_IMAGE_PIXELS:,} pixels, got "
+                             f"{self.width}×{self.height}; its ray table alone would take about "
+                             f"{self.width * self.height * 12 / 2**30:.3g} GiB")
         for name in ("fx", "fy", "cx", "cy"):
-            value = float(getattr(self, name))
-            if not np.isfinite(value):
-                raise NonFiniteError(f"Intrinsics.{name}: expected a finite value, got {value}")
-            object.__setattr__(self, name, value)
+            object.__setattr__(self, name, _finite_float(getattr(self, name), f"Intrinsics.{name}"))
         if self.fx == 0 or self.fy == 0:
-            raise RangeError(f"Intrinsics: focal lengths must be non-zero (signed), got fx={self.fx}, fy={self.fy}")
+            raise RangeError(f"Intrinsics.fx, fy: expected non-zero (signed) focal lengths, got fx={self.fx}, fy={self.fy}")
+        check_instance(self.distortion, Distortion, "Intrinsics.distortion")
 
     @property
     def K(self) -> np.ndarray:
@@ -162,6 +205,8 @@ class Intrinsics:
 
     def scaled(self, width: int, height: int) -> "Intrinsics":
         """The same camera resampled to ``width`` × ``height`` (pixel-centre convention kept)."""
+        for name, value in (("width", width), ("height", height)):
+            check_number(value, name, low=1, integer=True)
         sx, sy = width / self.width, height / self.height
         return Intrinsics(
             width, height, self.fx * sx, self.fy * sy,
@@ -174,9 +219,19 @@ class Intrinsics:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Intrinsics":
+        check_instance(d, Mapping, "d")
         d = dict(d)
-        dist = Distortion(**d.pop("distortion", {}))
-        return cls(distortion=dist, **d)
+        dist = d.pop("distortion", {})
+        check_instance(dist, Mapping, "d['distortion']")
+        names = {f.name for f in dataclasses.fields(cls)} - {"distortion"}
+        unknown, missing = set(map(str, d)) - names, names - set(map(str, d))
+        if unknown or missing:
+            raise InvalidInputError(f"d: expected the keys {sorted(names)} (and 'distortion'), got "
+                                    f"{sorted(map(str, d))}" + (f"; missing {sorted(missing)}" if missing else ""))
+        dist_names = {f.name for f in dataclasses.fields(Distortion)}
+        if set(map(str, dist)) - dist_names:
+            raise InvalidInputError(f"d['distortion']: expected keys among {sorted(dist_names)}, got {sorted(map(str, dist))}")
+        return cls(distortion=Distortion(**dist), **d)
 
 
 @dataclass(frozen=True, eq=False)
@@ -192,6 +247,9 @@ class RigidTransform(_ArrayEq):
     src: str = ""
 
     def __post_init__(self) -> None:
+        for name in ("dst", "src"):
+            if not isinstance(getattr(self, name), str):
+                raise DTypeError(f"RigidTransform.{name}: expected a frame name (str), got {getattr(self, name)!r}")
         m = check_array(self.matrix, "RigidTransform.matrix", shape=(4, 4), dtype="float").astype(np.float64)
         if not np.isfinite(m).all():
             raise NonFiniteError("RigidTransform.matrix: expected finite values, got NaN or inf")
@@ -214,8 +272,8 @@ class RigidTransform(_ArrayEq):
     def from_rt(cls, rotation: np.ndarray, translation: np.ndarray, dst: str = "", src: str = "") -> "RigidTransform":
         """From a (3, 3) rotation and a (3,) translation: ``p_dst = R p_src + t``."""
         m = np.eye(4)
-        m[:3, :3] = check_array(rotation, "rotation", shape=(3, 3), dtype="float")
-        m[:3, 3] = check_array(translation, "translation", shape=(3,), dtype=("float", "int"))
+        m[:3, :3] = check_array(rotation, "rotation", shape=(3, 3), dtype="float", finite=True)
+        m[:3, 3] = check_array(translation, "translation", shape=(3,), dtype=("float", "int"), finite=True)
         return cls(m, dst, src)
 
     @classmethod
@@ -249,26 +307,31 @@ class RigidTransform(_ArrayEq):
         return RigidTransform(m, self.src, self.dst)
 
     def apply(self, points: np.ndarray) -> np.ndarray:
-        """Transform (..., 3) points; the result has the input's float dtype (float64 for ints)."""
-        p = check_array(points, "points", shape=("*", 3))
+        """Transform (..., 3) points; the result has the input's float dtype (float64 for ints, float32
+        for float16). A point with NaN or infinity maps to non-finite values in its own row only."""
+        p = check_array(points, "points", shape=("*", 3), dtype=("float", "int"))
         dtype = p.dtype if p.dtype.kind == "f" else np.float64
         # One (N, 3) @ (3, 3) product, not a stack of per-row ones: half the time for images of points.
         out = p.reshape(-1, 3) @ self.rotation.T.astype(dtype) + self.translation.astype(dtype)
         return out.astype(dtype, copy=False).reshape(p.shape)
 
     def rotate(self, vectors: np.ndarray) -> np.ndarray:
-        """Rotate (..., 3) direction vectors (no translation)."""
-        v = check_array(vectors, "vectors", shape=("*", 3))
+        """Rotate (..., 3) direction vectors (no translation); non-finite vectors stay in their own row."""
+        v = check_array(vectors, "vectors", shape=("*", 3), dtype=("float", "int"))
         dtype = v.dtype if v.dtype.kind == "f" else np.float64
         return (v.reshape(-1, 3) @ self.rotation.T.astype(dtype)).astype(dtype, copy=False).reshape(v.shape)
 
+    def __rmatmul__(self, other: object) -> "RigidTransform":
+        raise DTypeError(f"left operand of @: expected a RigidTransform, got {type(other).__name__}")
+
     def __matmul__(self, other: "RigidTransform") -> "RigidTransform":
         if not isinstance(other, RigidTransform):
-            return NotImplemented
+            raise DTypeError(f"right operand of @: expected a RigidTransform, got {type(other).__name__}")
         if self.src and other.dst and self.src != other.dst:
-            raise InvalidInputError(
-                f"cannot compose T_{self.dst}_from_{self.src} @ T_{other.dst}_from_{other.src}: "
-                f"frames {self.src!r} and {other.dst!r} differ"
+            raise FrameError(
+                f"right operand of @: expected T_{self.src}_from_*, got T_{other.dst}_from_{other.src} "
+                f"(cannot compose T_{self.dst}_from_{self.src} @ T_{other.dst}_from_{other.src}: "
+                f"frames {self.src!r} and {other.dst!r} differ)"
             )
         m = self.matrix @ other.matrix
         # Re-orthonormalise so long chains do not drift past the validation tolerance.
@@ -284,8 +347,11 @@ class DepthPacket(_ArrayEq):
     Attributes:
         timestamp_ns: capture time, integer nanoseconds.
         points_m: (N, 3) float32 points in the depth sensor frame (OpenCV axes), metres. N may be 0.
+            Points with NaN or infinity are kept as the sensor gave them: the ingest drops them
+            (:func:`rgbd_envmap.ingest.tango.depth_image_from_points`) and the session log counts them.
         confidence: (N,) float32 in [0, 1]; the paper treats < 0.7 as unknown.
-        T_world_from_depth: the depth sensor's pose at capture.
+        T_world_from_depth: the depth sensor's pose at capture; named frames must be
+            ``("world", "depth")`` (:class:`FrameError` otherwise).
     """
 
     timestamp_ns: int
@@ -294,14 +360,15 @@ class DepthPacket(_ArrayEq):
     T_world_from_depth: RigidTransform
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "timestamp_ns", int(self.timestamp_ns))
+        object.__setattr__(self, "timestamp_ns", _timestamp(self.timestamp_ns, "timestamp_ns"))
         pts = check_array(self.points_m, "points_m", shape=("N", 3), dtype=("float", "int"))
-        conf = check_array(self.confidence, "confidence", shape=(pts.shape[0],), dtype=("float", "int"))
+        conf = check_array(self.confidence, "confidence", dtype=("float", "int"))
+        if conf.shape != (pts.shape[0],):
+            raise ShapeError(f"confidence: expected shape ({pts.shape[0]},) (one per row of points_m), got {conf.shape}")
         check_range(conf, "confidence", 0.0, 1.0)
         _frozen_array(self, "points_m", pts.astype(np.float32))
         _frozen_array(self, "confidence", conf.astype(np.float32))
-        if not isinstance(self.T_world_from_depth, RigidTransform):
-            raise InvalidInputError(f"T_world_from_depth: expected a RigidTransform, got {type(self.T_world_from_depth).__name__}")
+        check_transform(self.T_world_from_depth, "T_world_from_depth", "world", "depth")
 
     @property
     def kind(self) -> str:
@@ -315,7 +382,8 @@ class ColourPacket(_ArrayEq):
     Attributes:
         timestamp_ns: capture time, integer nanoseconds.
         nv21: (H * 3 // 2, W) uint8 Y'UV420sp buffer (Y plane, then interleaved V, U at half resolution).
-        T_world_from_colour: the colour camera's pose at capture.
+        T_world_from_colour: the colour camera's pose at capture; named frames must be
+            ``("world", "colour")`` (:class:`FrameError` otherwise).
     """
 
     timestamp_ns: int
@@ -323,7 +391,7 @@ class ColourPacket(_ArrayEq):
     T_world_from_colour: RigidTransform
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "timestamp_ns", int(self.timestamp_ns))
+        object.__setattr__(self, "timestamp_ns", _timestamp(self.timestamp_ns, "timestamp_ns"))
         buf = check_array(self.nv21, "nv21", shape=("R", "W"), dtype=np.uint8)
         rows, width = buf.shape
         if rows == 0 or width == 0 or rows % 3 or width % 2 or (rows * 2 // 3) % 2:
@@ -331,8 +399,7 @@ class ColourPacket(_ArrayEq):
                 f"nv21: expected shape (H*3/2, W) with even H, W > 0, got {buf.shape}"
             )
         _frozen_array(self, "nv21", buf)
-        if not isinstance(self.T_world_from_colour, RigidTransform):
-            raise InvalidInputError(f"T_world_from_colour: expected a RigidTransform, got {type(self.T_world_from_colour).__name__}")
+        check_transform(self.T_world_from_colour, "T_world_from_colour", "world", "colour")
 
     @property
     def kind(self) -> str:
@@ -370,8 +437,13 @@ class Calibration:
     colour_rate_hz: float = 30.0
 
     def __post_init__(self) -> None:
-        if self.sensor not in ("tango", "kinect"):
+        if not isinstance(self.sensor, str) or self.sensor not in ("tango", "kinect"):
             raise InvalidInputError(f"Calibration.sensor: expected 'tango' or 'kinect', got {self.sensor!r}")
+        check_instance(self.depth, Intrinsics, "Calibration.depth")
+        check_instance(self.colour, Intrinsics, "Calibration.colour")
+        check_transform(self.T_colour_from_depth, "Calibration.T_colour_from_depth", "colour", "depth")
+        for name in ("depth_rate_hz", "colour_rate_hz"):
+            object.__setattr__(self, name, check_number(getattr(self, name), f"Calibration.{name}", low=0.0, low_open=True))
 
     def to_dict(self) -> dict:
         return {
@@ -385,13 +457,17 @@ class Calibration:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Calibration":
+        """The calibration :meth:`to_dict` wrote; a missing key is an :class:`InvalidInputError` naming
+        it (and the keys found)."""
+        check_instance(d, Mapping, "d")
+        matrix = check_array(_mapping_get(d, "T_colour_from_depth", "d"), "d['T_colour_from_depth']", shape=(4, 4), dtype=("float", "int"))
         return cls(
-            sensor=d["sensor"],
-            depth=Intrinsics.from_dict(d["depth"]),
-            colour=Intrinsics.from_dict(d["colour"]),
-            T_colour_from_depth=RigidTransform(np.array(d["T_colour_from_depth"], dtype=np.float64), "colour", "depth"),
-            depth_rate_hz=float(d.get("depth_rate_hz", 5.0)),
-            colour_rate_hz=float(d.get("colour_rate_hz", 30.0)),
+            sensor=_mapping_get(d, "sensor", "d"),
+            depth=Intrinsics.from_dict(_mapping_get(d, "depth", "d")),
+            colour=Intrinsics.from_dict(_mapping_get(d, "colour", "d")),
+            T_colour_from_depth=RigidTransform(matrix.astype(np.float64), "colour", "depth"),
+            depth_rate_hz=d.get("depth_rate_hz", 5.0),
+            colour_rate_hz=d.get("colour_rate_hz", 30.0),
         )
 
 
@@ -400,10 +476,12 @@ class RGBDFrame(_ArrayEq):
     """An RGB-D frame in the depth sensor's image grid.
 
     Attributes:
-        rgb: (H, W, 3) float32 linear RGB in the current camera's colour space.
-        depth_m: (H, W) float32 z-depth in metres; meaningful only where ``known``.
+        rgb: (H, W, 3) float32 linear RGB in the current camera's colour space. Kept as given, as ``depth_m``.
+        depth_m: (H, W) float32 z-depth in metres; meaningful only where ``known``. Values are kept
+            as given, NaN included: the denoiser and the map update skip a non-finite depth at a
+            known pixel, :func:`rgbd_envmap.depth.fill_holes` refuses it (``NonFiniteError``).
         known: (H, W) bool, True where depth_m holds a measurement or an estimate.
-        T_world_from_cam: pose of the frame's camera.
+        T_world_from_cam: pose of the frame's camera (named frames: into ``"world"``).
         intrinsics: the frame's (depth sensor) intrinsics.
         timestamp_ns: capture time of the depth data.
     """
@@ -416,6 +494,8 @@ class RGBDFrame(_ArrayEq):
     timestamp_ns: int
 
     def __post_init__(self) -> None:
+        check_instance(self.intrinsics, Intrinsics, "intrinsics")
+        check_transform(self.T_world_from_cam, "T_world_from_cam", "world")
         h, w = self.intrinsics.height, self.intrinsics.width
         rgb = check_array(self.rgb, "rgb", shape=(h, w, 3), dtype="float")
         depth = check_array(self.depth_m, "depth_m", shape=(h, w), dtype="float")
@@ -423,7 +503,7 @@ class RGBDFrame(_ArrayEq):
         _frozen_array(self, "rgb", rgb.astype(np.float32))
         _frozen_array(self, "depth_m", depth.astype(np.float32))
         _frozen_array(self, "known", known)
-        object.__setattr__(self, "timestamp_ns", int(self.timestamp_ns))
+        object.__setattr__(self, "timestamp_ns", _timestamp(self.timestamp_ns, "timestamp_ns"))
 
     def with_depth(self, depth_m: np.ndarray) -> "RGBDFrame":
         """This frame with ``depth_m`` ((H, W) float) as its depth; colours, mask, pose and time
@@ -438,3 +518,4 @@ class RGBDFrame(_ArrayEq):
         out = copy.copy(self)  # a shallow copy: __post_init__ does not run again
         object.__setattr__(out, "depth_m", depth)
         return out
+

@@ -1,9 +1,20 @@
-"""Scene description: triangle meshes whose surfaces carry linear outgoing radiance.
+"""Scene description: triangle meshes whose surfaces are either lit or carry a fixed radiance.
 
-A scene is a list of :class:`SceneObject`; each has a shape (quad, box, cylinder, sphere), a radiance
-(constant RGB or a procedural texture over a quad's (s, t) ∈ [0, 1]²), sensor flags (``emissive``,
-``shiny``, ``dark``) that drive the ToF confidence model, and a timeline (visible interval, radiance
-scale steps such as a lamp dimming). There is no light transport: the radiance *is* what a camera sees.
+A scene is a list of :class:`SceneObject`; each has a shape (quad, box, cylinder, sphere, or a mesh
+file), a material, sensor flags (``emissive``, ``shiny``, ``dark``) that drive the ToF confidence
+model, and a timeline (visible interval, scale steps such as a lamp dimming). Two materials:
+
+- **lit** (``albedo:`` and optionally ``emission:``): a two-sided Lambertian surface with diffuse
+  reflectance ρ ∈ [0, 1) and emitted radiance Le ≥ 0, lit by global illumination from every emitter in
+  the scene. Its outgoing radiance comes from a bake (:mod:`sim.bake`, Mitsuba 3's path tracer) stored
+  per surface and read by the ray caster; the timeline's ``scale`` steps multiply the emission.
+- **fixed radiance** (``radiance:``): the outgoing radiance *is* what a camera sees, lit by nothing.
+  In a scene with lit surfaces such a surface also lights them (it is an emitter of its radiance that
+  reflects nothing).
+
+Albedo, emission and radiance are constant RGB or a procedural texture over a quad's (s, t) ∈ [0, 1]².
+Scenes are written in YAML under ``sim/data/scenes/`` (package data, installed with the package);
+:func:`load_scene` reads one by name or path.
 
 Scenes are written in YAML under ``sim/data/scenes/`` (package data, installed with the package);
 :func:`load_scene` reads one by name or path.
@@ -65,19 +76,37 @@ class Texture:
         return self.colours[j * self.cells[0] + i]
 
 
+def _rgb(value, what: str, *, below_one: bool = False) -> np.ndarray:
+    """(3,) float32 from a scene value, finite and ≥ 0 (and < 1 with ``below_one``), else a typed error."""
+    try:
+        rgb = np.asarray(value, dtype=np.float64).reshape(3)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{what}: expected [r, g, b], got {value!r}") from None
+    if not np.isfinite(rgb).all() or (rgb < 0).any() or (below_one and (rgb >= 1).any()):
+        rng = "in [0, 1)" if below_one else "finite and ≥ 0"
+        raise InvalidInputError(f"{what}: each channel must be {rng}, got {rgb.tolist()}")
+    return rgb.astype(np.float32)
+
+
 @dataclass(frozen=True)
 class SceneObject:
-    """One emitting mesh.
+    """One mesh with its material.
 
     Attributes:
         name: unique within the scene.
         vertices: (V, 3) float64 world coordinates, metres. faces: (F, 3) int.
-        radiance: (3,) linear RGB, or None when ``texture`` is set.
-        texture: procedural radiance; only for quads (``quad_frame`` set).
+        radiance: (3,) linear RGB fixed outgoing radiance, or None (``texture`` or a lit material).
+        texture: procedural fixed radiance; only for quads (``quad_frame`` set).
+        albedo: (3,) diffuse reflectance in [0, 1) of a lit surface, or None (``albedo_texture``, or a
+            fixed-radiance surface).
+        albedo_texture: procedural albedo (quads only; colours in [0, 1)).
+        emission: (3,) emitted radiance of a lit surface (zero when None and no ``emission_texture``).
+        emission_texture: procedural emission (quads only).
         quad_frame: (corner, u, v) of a quad, for texture lookup.
         flags: subset of ``emissive``, ``shiny``, ``dark``.
         visible_from_s, visible_until_s: the object exists for t in [from, until).
-        scale_steps: ((t_s, scale), ...) radiance multiplier from each time on (1 before the first).
+        scale_steps: ((t_s, scale), ...) multiplier of the radiance or emission from each time on (1
+            before the first).
     """
 
     name: str
@@ -90,20 +119,54 @@ class SceneObject:
     visible_from_s: float = -np.inf
     visible_until_s: float = np.inf
     scale_steps: tuple[tuple[float, float], ...] = ()
+    albedo: np.ndarray | None = None
+    albedo_texture: Texture | None = None
+    emission: np.ndarray | None = None
+    emission_texture: Texture | None = None
 
     def __post_init__(self) -> None:
         unknown = set(self.flags) - set(FLAG_BITS)
         if unknown:
             raise InvalidInputError(f"{self.name}: unknown flags {sorted(unknown)}; valid are {sorted(FLAG_BITS)}")
-        if (self.radiance is None) == (self.texture is None):
+        fixed = self.radiance is not None or self.texture is not None
+        lit = self.albedo is not None or self.albedo_texture is not None
+        if fixed and lit:
+            raise InvalidInputError(f"{self.name}: give either radiance or albedo, not both")
+        if not fixed and not lit:
+            raise InvalidInputError(f"{self.name}: give radiance (fixed) or albedo (lit)")
+        if self.radiance is not None and self.texture is not None:
             raise InvalidInputError(f"{self.name}: give exactly one of radiance or texture")
-        if self.texture is not None and self.quad_frame is None:
+        if self.albedo is not None and self.albedo_texture is not None:
+            raise InvalidInputError(f"{self.name}: give exactly one of albedo or albedo_texture")
+        if self.emission is not None and self.emission_texture is not None:
+            raise InvalidInputError(f"{self.name}: give exactly one of emission or emission_texture")
+        if fixed and (self.emission is not None or self.emission_texture is not None):
+            raise InvalidInputError(f"{self.name}: emission needs a lit surface (albedo); radiance is already fixed")
+        textures = [t for t in (self.texture, self.albedo_texture, self.emission_texture) if t is not None]
+        if textures and self.quad_frame is None:
             raise InvalidInputError(f"{self.name}: textures are supported on quads only")
         if self.radiance is not None:
-            rad = np.asarray(self.radiance, dtype=np.float32).reshape(3)
-            if not np.isfinite(rad).all() or (rad < 0).any():
-                raise InvalidInputError(f"{self.name}: radiance must be finite and ≥ 0, got {rad}")
-            object.__setattr__(self, "radiance", rad)
+            object.__setattr__(self, "radiance", _rgb(self.radiance, f"{self.name}: radiance"))
+        if self.albedo is not None:
+            object.__setattr__(self, "albedo", _rgb(self.albedo, f"{self.name}: albedo", below_one=True))
+        if self.albedo_texture is not None and (self.albedo_texture.colours >= 1).any():
+            raise InvalidInputError(f"{self.name}: albedo: texture colours must be in [0, 1)")
+        if self.emission is not None:
+            object.__setattr__(self, "emission", _rgb(self.emission, f"{self.name}: emission"))
+
+    @property
+    def lit(self) -> bool:
+        """A lit (albedo) surface, as opposed to a fixed-radiance one."""
+        return self.albedo is not None or self.albedo_texture is not None
+
+    @property
+    def emits(self) -> bool:
+        """Emits light into the scene: a fixed-radiance surface, or a lit one with non-zero emission."""
+        if not self.lit:
+            return True
+        if self.emission_texture is not None:
+            return bool((self.emission_texture.colours > 0).any())
+        return self.emission is not None and bool((self.emission > 0).any())
 
     def visible_at(self, t_s: float) -> bool:
         return self.visible_from_s <= t_s < self.visible_until_s
@@ -140,6 +203,11 @@ class Scene:
             if o.name == name:
                 return o
         raise KeyError(name)
+
+    @property
+    def is_lit(self) -> bool:
+        """Any lit surface: the scene needs a bake (:func:`sim.bake.bake_scene`)."""
+        return any(o.lit for o in self.objects)
 
     def change_times(self) -> list[float]:
         """Times at which the set of visible objects changes."""
@@ -180,16 +248,32 @@ def _build_shape(spec: dict, name: str):
     return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64), None
 
 
+def _material_value(spec: dict, key: str, name: str) -> tuple[np.ndarray | None, Texture | None]:
+    """A constant RGB or a procedural texture from ``spec[key]`` (both None when absent)."""
+    value = spec.get(key)
+    if value is None:
+        return None, None
+    if isinstance(value, dict):
+        try:
+            return None, Texture(value["texture"], np.asarray(value["colours"], dtype=np.float32),
+                                 tuple(value.get("cells", (1, 1))))
+        except KeyError as e:
+            raise InvalidInputError(f"object {name}: {key}: a texture needs {e.args[0]!r}") from None
+        except InvalidInputError as e:
+            raise InvalidInputError(f"object {name}: {key}: {e}") from None
+    return _rgb(value, f"object {name}: {key}", below_one=key == "albedo"), None
+
+
 def _object_from_spec(spec: dict) -> SceneObject:
     name = spec.get("name")
     if not name:
         raise InvalidInputError(f"scene object without a name: {spec}")
+    if "radiance" in spec and "albedo" in spec:
+        raise InvalidInputError(f"object {name}: give either radiance or albedo, not both")
     verts, faces, frame = _build_shape(spec, name)
-    rad = spec.get("radiance")
-    texture = None
-    if isinstance(rad, dict):
-        texture = Texture(rad["texture"], np.asarray(rad["colours"], dtype=np.float32), tuple(rad.get("cells", (1, 1))))
-        rad = None
+    rad, texture = _material_value(spec, "radiance", name)
+    albedo, albedo_texture = _material_value(spec, "albedo", name)
+    emission, emission_texture = _material_value(spec, "emission", name)
     vis = spec.get("visible", {}) or {}
     steps = tuple((float(s["t"]), float(s["scale"])) for s in spec.get("timeline", []) or [])
     return SceneObject(
@@ -197,6 +281,7 @@ def _object_from_spec(spec: dict) -> SceneObject:
         flags=frozenset(spec.get("flags", []) or []),
         visible_from_s=float(vis.get("from", -np.inf)), visible_until_s=float(vis.get("until", np.inf)),
         scale_steps=tuple(sorted(steps)),
+        albedo=albedo, albedo_texture=albedo_texture, emission=emission, emission_texture=emission_texture,
     )
 
 

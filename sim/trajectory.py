@@ -5,7 +5,10 @@ Kinds (YAML under ``sim/data/trajectories/``, shipped as package data):
 * ``orbit``: the device circles a centre; ``facing: outward`` looks away from it (scanning the room
   from near the virtual object, with a pitch sweep to reach floor and ceiling), ``inward`` looks at it.
 * ``waypoints``: piecewise-linear positions and look-at targets at given times (a handheld sweep).
-* ``sequence``: several of the above in turn, each ``until_s`` a time (global session time).
+* ``sequence``: several of the above in turn, each ``until_s`` a time (global session time). A part's
+  ``blend_s`` joins it to the next one smoothly: over ``blend_s`` seconds centred on ``until_s`` the
+  pose moves from the one part to the other (a hand-held device cannot jump). Without it the device
+  jumps at ``until_s`` wherever the parts do not meet.
 
 Any kind takes ``jitter_m`` / ``jitter_deg``: smooth hand shake, a sum of seeded sinusoids (0.3–2 Hz),
 part of the *true* pose. Tracking noise (error in the *reported* pose) belongs to the device.
@@ -20,12 +23,13 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
+from rgbd_envmap.checks import check_number
 from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.geometry import look_at
 from rgbd_envmap.types import RigidTransform
 
 __all__ = [
-    "Jitter", "OrbitTrajectory", "WaypointTrajectory", "SequenceTrajectory", "Trajectory", "load_trajectory", "TRAJECTORIES_DIR",
+    "Jitter", "OrbitTrajectory", "blend_poses", "WaypointTrajectory", "SequenceTrajectory", "Trajectory", "load_trajectory", "TRAJECTORIES_DIR",
 ]
 
 #: The packaged trajectories (``sim/data/trajectories/*.yaml``, shipped as package data; see pyproject.toml).
@@ -133,22 +137,64 @@ class WaypointTrajectory:
         return self.jitter.apply(look_at(pos, tgt), t_s)
 
 
+def _smootherstep(x: float) -> float:
+    """0 → 1 on [0, 1] with zero first and second derivatives at both ends (6x⁵ − 15x⁴ + 10x³)."""
+    x = min(max(x, 0.0), 1.0)
+    return x * x * x * (x * (6.0 * x - 15.0) + 10.0)
+
+
+def blend_poses(a: RigidTransform, b: RigidTransform, w: float) -> RigidTransform:
+    """The pose a fraction ``w`` of the way from ``a`` to ``b``: positions mixed linearly, rotations
+    along the shortest arc between them (slerp)."""
+    if w <= 0.0:
+        return a
+    if w >= 1.0:
+        return b
+    rel = Rotation.from_matrix(a.rotation.T @ b.rotation).as_rotvec()
+    r = a.rotation @ Rotation.from_rotvec(w * rel).as_matrix()
+    return RigidTransform.from_rt(r, (1.0 - w) * a.translation + w * b.translation, a.dst, a.src)
+
+
 @dataclass(frozen=True)
 class SequenceTrajectory:
     """Part i drives the device for t < ``until_s[i]`` (and after the previous part); the last part
-    runs on forever. Times are session times."""
+    runs on forever. Times are session times.
+
+    ``blend_s[i]`` (0: a cut) joins part i to part i + 1: for |t − until_s[i]| < blend_s[i] / 2 the
+    pose is ``blend_poses(part_i(t), part_{i+1}(t), w)`` with w rising from 0 to 1 by a smootherstep,
+    so position and orientation stay continuous, with continuous velocity and acceleration (both parts
+    are smooth and the weight's first two derivatives vanish at the ends). Blend windows must not
+    overlap.
+    """
 
     parts: tuple
     until_s: tuple[float, ...]
+    blend_s: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if not self.parts or len(self.until_s) != len(self.parts) - 1:
             raise InvalidInputError("sequence: give one until_s for every part but the last")
         if np.any(np.diff(self.until_s) <= 0):
             raise InvalidInputError(f"sequence: until_s must increase strictly, got {self.until_s}")
+        if not self.blend_s:
+            object.__setattr__(self, "blend_s", (0.0,) * len(self.until_s))
+        if len(self.blend_s) != len(self.until_s):
+            raise InvalidInputError(f"sequence: blend_s needs one value per until_s ({len(self.until_s)}), got {self.blend_s}")
+        for b in self.blend_s:
+            check_number(b, "sequence blend_s", low=0.0)
+        edges = [(u - b / 2, u + b / 2) for u, b in zip(self.until_s, self.blend_s)]
+        if any(edges[i][1] > edges[i + 1][0] for i in range(len(edges) - 1)):
+            raise InvalidInputError(f"sequence: blend windows overlap (until_s {self.until_s}, blend_s {self.blend_s})")
 
     def pose(self, t_s: float) -> RigidTransform:
         i = int(np.searchsorted(np.asarray(self.until_s), t_s, side="right"))
+        # A blend window around the boundary before t (i - 1) or after it (i).
+        for j in (i - 1, i):
+            if 0 <= j < len(self.until_s) and self.blend_s[j] > 0.0:
+                lo = self.until_s[j] - self.blend_s[j] / 2
+                if lo < t_s < self.until_s[j] + self.blend_s[j] / 2:
+                    w = _smootherstep((t_s - lo) / self.blend_s[j])
+                    return blend_poses(self.parts[j].pose(t_s), self.parts[j + 1].pose(t_s), w)
         return self.parts[i].pose(t_s)
 
 
@@ -164,8 +210,10 @@ def trajectory_from_dict(d: dict) -> Trajectory:
         if not parts:
             raise InvalidInputError("sequence: no parts")
         until = [float(p.pop("until_s")) for p in parts[:-1]]
+        blend = [float(p.pop("blend_s", 0.0)) for p in parts[:-1]]
         parts[-1].pop("until_s", None)
-        return SequenceTrajectory(tuple(trajectory_from_dict(p) for p in parts), tuple(until))
+        parts[-1].pop("blend_s", None)
+        return SequenceTrajectory(tuple(trajectory_from_dict(p) for p in parts), tuple(until), tuple(blend))
     jitter = Jitter(**(d.pop("jitter", None) or {}))
     if kind == "orbit":
         if "centre" in d:

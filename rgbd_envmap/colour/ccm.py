@@ -236,20 +236,11 @@ def estimate_ccm(
     dst_raw = check_array(dst, "dst", shape=("*", 3), dtype="float")
     if src_raw.shape != dst_raw.shape:
         raise ShapeError(f"dst: expected the shape of src {src_raw.shape}, got {dst_raw.shape}")
-    max_mse = float(max_mse)
-    if not max_mse >= 0.0:
-        raise RangeError(f"max_mse: expected a number ≥ 0, got {max_mse}")
-    max_condition = float(max_condition)
-    if not max_condition >= 1.0:
-        raise RangeError(f"max_condition: expected a number ≥ 1, got {max_condition}")
+    max_mse = check_number(max_mse, "max_mse", low=0.0)
+    max_condition = check_number(max_condition, "max_condition", low=1.0)
     min_pairs = check_positive_int(min_pairs, "min_pairs")
-    sat = math.inf if saturation is None else float(saturation)
-    if math.isnan(sat):
-        raise RangeError("saturation: expected a number or None, got nan")
-    if noise_std is not None:
-        noise_std = float(noise_std)
-        if not 0.0 <= noise_std < math.inf:
-            raise RangeError(f"noise_std: expected a finite number ≥ 0 or None, got {noise_std}")
+    sat = math.inf if saturation is None else _check_saturation(saturation)
+    noise_std = check_number(noise_std, "noise_std", low=0.0, optional=True)
     ridge = check_number(ridge, "ridge", low=0.0)
     a = _check_ccm_input(src_raw, "src")
     b = _check_ccm_input(dst_raw, "dst")
@@ -257,13 +248,24 @@ def estimate_ccm(
                          max_condition=max_condition, noise_std=noise_std, ridge=float(ridge), data=(a, b, sat))
 
 
+def _check_saturation(saturation: object) -> float:
+    """A saturation level: a number > 0, infinity allowed (nothing saturates)."""
+    if isinstance(saturation, (float, np.floating)) and saturation == math.inf:
+        return math.inf
+    return float(check_number(saturation, "saturation", low=0.0, low_open=True))
+
+
 def ccm_sums(src: np.ndarray, dst: np.ndarray, saturation: float) -> tuple:
     """The normal-equation sums of the pairs (src, dst), as :func:`estimate_ccm` accumulates them:
     ``(AᵀA, AᵀB, tr(BᵀB), kept, dropped non-finite, dropped saturated)``, the sums in float64 over the
     rows kept (pair order), a row dropped when any value is non-finite or any src channel is ≥
-    ``saturation``. The arguments are not checked: (N, 3) float arrays and a float.
-    :func:`ccm_from_sums` fits and gates the matrix from them."""
-    return kernels.ccm_sums(src, dst, saturation)
+    ``saturation`` (a number > 0, or infinity). ``src`` and ``dst`` are (N, 3) float arrays of one
+    shape (float16 converted). :func:`ccm_from_sums` fits and gates the matrix from them."""
+    src_raw = check_array(src, "src", shape=("*", 3), dtype="float")
+    dst_raw = check_array(dst, "dst", shape=("*", 3), dtype="float")
+    if src_raw.shape != dst_raw.shape:
+        raise ShapeError(f"dst: expected the shape of src {src_raw.shape}, got {dst_raw.shape}")
+    return kernels.ccm_sums(_check_ccm_input(src_raw, "src"), _check_ccm_input(dst_raw, "dst"), _check_saturation(saturation))
 
 
 def ccm_from_sums(

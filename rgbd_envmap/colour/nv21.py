@@ -81,7 +81,8 @@ def srgb_to_linear(rgb: np.ndarray) -> np.ndarray:
 
 
 def linear_to_srgb(rgb: np.ndarray) -> np.ndarray:
-    """Inverse sRGB EOTF: linear values (clipped to [0, 1]) → encoded values in [0, 1]."""
-    x = np.asarray(rgb)
+    """Inverse sRGB EOTF: linear values (clipped to [0, 1]) → encoded values in [0, 1], float32
+    (float64 stays float64). NaN stays NaN; the dtype policy is :func:`srgb_to_linear`'s."""
+    x = check_array(rgb, "rgb", dtype=("float", "int", "bool"))
     x = np.clip(x.astype(np.float32) if x.dtype.kind != "f" else x, 0.0, 1.0)
     return np.where(x <= 0.0031308, x * 12.92, 1.055 * np.power(x, 1.0 / 2.4) - 0.055).astype(x.dtype, copy=False)

@@ -34,7 +34,7 @@ from functools import lru_cache
 import numpy as np
 
 from rgbd_envmap._kernels import denoise as kernels
-from rgbd_envmap.checks import check_array, check_positive_int
+from rgbd_envmap.checks import check_array, check_instance, check_number, check_positive_int
 from rgbd_envmap.errors import InvalidInputError, RangeError
 from rgbd_envmap.geometry import pixel_rays
 from rgbd_envmap.types import Intrinsics, RGBDFrame
@@ -93,12 +93,12 @@ def denoise_depth(depth_m: np.ndarray, known: np.ndarray, intrinsics: Intrinsics
 def _check_parameters(shape: tuple[int, ...], intrinsics: Intrinsics, half_window: int, tol_rel: float,
                       min_inliers: int) -> tuple[int, float, float]:
     """(half window, tolerance, minimum inliers as a float) after the checks of :func:`denoise_depth`."""
+    check_instance(intrinsics, Intrinsics, "intrinsics")
     half = check_positive_int(half_window, "half_window")
     min_in = check_positive_int(min_inliers, "min_inliers")
     if min_in < 3:
         raise RangeError(f"min_inliers: a plane needs at least 3 points, got {min_in}")
-    if not 0.0 < float(tol_rel) < 1.0:
-        raise RangeError(f"tol_rel: expected a fraction in (0, 1), got {tol_rel}")
+    tol_rel = check_number(tol_rel, "tol_rel", low=0.0, high=1.0, low_open=True, high_open=True)
     if (intrinsics.height, intrinsics.width) != shape:
         raise RangeError(f"intrinsics: expected a {shape[0]}×{shape[1]} camera for this depth image, got "
                          f"{intrinsics.height}×{intrinsics.width}")

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgbd_envmap.checks import check_array, check_positive_int
+from rgbd_envmap.checks import check_array, check_number, check_positive_int
 from rgbd_envmap.errors import DTypeError, InvalidInputError, NonFiniteError, RangeError
 
 __all__ = ["EnvironmentMap", "MapChanges", "ChangeLog", "check_map", "MAX_MAP_PIXELS", "MAP_BYTES_PER_PIXEL"]
@@ -207,7 +207,8 @@ class ChangeLog:
     DEFAULT_CAPACITY = 1 << 18
 
     def __init__(self, capacity: int = DEFAULT_CAPACITY) -> None:
-        self.capacity = int(capacity)
+        # 21 bytes per entry; a map has at most MAX_MAP_PIXELS pixels to change.
+        self.capacity = int(check_number(capacity, "capacity", low=0, high=MAX_MAP_PIXELS, integer=True))
         self.idx = np.empty(self.capacity, np.int64)
         self.old = np.empty((self.capacity, 3), np.float32)
         self.was_valid = np.empty(self.capacity, bool)

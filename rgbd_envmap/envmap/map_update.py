@@ -34,11 +34,11 @@ import numpy as np
 
 from rgbd_envmap._kernels import envmap_update as kernels
 from rgbd_envmap._kernels.parallel import parallel_call
-from rgbd_envmap.checks import check_array, check_flag, check_number, check_positive_int
+from rgbd_envmap.checks import check_array, check_flag, check_instance, check_number, check_positive_int
 from rgbd_envmap.envmap.map import ChangeLog, EnvironmentMap, check_map
 from rgbd_envmap.envmap.tables import trig_tables
 from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError
-from rgbd_envmap.types import Intrinsics, RigidTransform
+from rgbd_envmap.types import Intrinsics, RigidTransform, check_transform
 
 __all__ = ["UpdateConfig", "SeenDepth", "UpdateStats", "update", "map_coordinates"]
 
@@ -108,12 +108,21 @@ class UpdateConfig:
 @dataclass(frozen=True)
 class SeenDepth:
     """What the device measured in one frame, for free-space carving: (H, W) z-depth in metres where
-    ``known`` (measured, not hole-filled), the depth camera's intrinsics (with distortion) and pose."""
+    ``known`` (measured, not hole-filled), the depth camera's intrinsics (with distortion) and pose
+    (into ``"world"`` where the frames are named). A non-finite or non-positive depth counts as not
+    measured."""
 
     depth_m: np.ndarray
     known: np.ndarray
     intrinsics: Intrinsics
     T_world_from_cam: RigidTransform
+
+    def __post_init__(self) -> None:
+        # Types, shapes and frames only (a few µs per frame); the arrays are kept as given.
+        check_instance(self.intrinsics, Intrinsics, "SeenDepth.intrinsics")
+        check_transform(self.T_world_from_cam, "SeenDepth.T_world_from_cam", "world")
+        check_array(self.depth_m, "SeenDepth.depth_m", shape=self.intrinsics.shape, dtype=("float", "int"))
+        check_array(self.known, "SeenDepth.known", shape=self.intrinsics.shape, dtype="bool")
 
 
 @dataclass(frozen=True)
@@ -266,6 +275,7 @@ def _seen_arrays(seen: SeenDepth, config: UpdateConfig) -> tuple[np.ndarray, np.
     intr = seen.intrinsics
     if not isinstance(intr, Intrinsics) or not isinstance(seen.T_world_from_cam, RigidTransform):
         raise InvalidInputError("seen: expected Intrinsics and a RigidTransform")
+    check_transform(seen.T_world_from_cam, "seen.T_world_from_cam", "world")
     shape = (intr.height, intr.width)
     depth = check_array(seen.depth_m, "seen.depth_m", shape=shape, dtype="float")
     known = check_array(seen.known, "seen.known", shape=shape, dtype="bool")
@@ -292,7 +302,8 @@ def _seen_arrays(seen: SeenDepth, config: UpdateConfig) -> tuple[np.ndarray, np.
 def map_coordinates(points_world: np.ndarray, origin: np.ndarray, height: int, width: int) -> tuple[np.ndarray, ...]:
     """Continuous map coordinates of (N, 3) world points exactly as :func:`update` computes them:
     (N,) float64 row ``v`` and column ``u`` (pixel (row, col) = (⌊v⌋, ⌊u⌋); row 0 at the zenith) and
-    distance ``r`` from ``origin``. The update's arctangent is a polynomial within 1.2e-8 rad of
+    distance ``r`` from ``origin`` (a non-finite point gives non-finite coordinates in its own entry;
+    :func:`update` drops such points). The update's arctangent is a polynomial within 1.2e-8 rad of
     libm's, so a point that close to a pixel edge may land next door compared with
     :func:`rgbd_envmap.geometry.directions_to_equirect`. Non-finite points give meaningless values."""
     pts = np.ascontiguousarray(check_array(points_world, "points_world", shape=("N", 3), dtype="float"), np.float64)

@@ -22,7 +22,7 @@ from rgbd_envmap.checks import check_array, check_number, check_positive_int
 from rgbd_envmap.envmap.map import EnvironmentMap, check_map
 from rgbd_envmap.errors import DTypeError, InvalidInputError
 from rgbd_envmap.geometry import pixel_rays
-from rgbd_envmap.types import Intrinsics, RigidTransform
+from rgbd_envmap.types import Intrinsics, RigidTransform, check_transform
 
 __all__ = ["collect_pairs", "frame_points", "frame_pairs", "frame_pair_sums", "frame_samples"]
 
@@ -33,9 +33,7 @@ def _check_camera(intrinsics: object, T_world_from_cam: object) -> None:
         raise DTypeError(f"intrinsics: expected an Intrinsics, got {type(intrinsics).__name__}")
     if not isinstance(T_world_from_cam, RigidTransform):
         raise DTypeError(f"T_world_from_cam: expected a RigidTransform, got {type(T_world_from_cam).__name__}")
-    if T_world_from_cam.dst not in ("", "world"):  # unnamed transforms are taken as they come
-        raise InvalidInputError(f"T_world_from_cam: expected a transform into 'world', got "
-                                f"T_{T_world_from_cam.dst}_from_{T_world_from_cam.src}")
+    check_transform(T_world_from_cam, "T_world_from_cam", "world")  # unnamed frames are taken as they come
 
 
 def _check_max_diff(value: object) -> float:
@@ -89,7 +87,9 @@ def collect_pairs(
     """Colour pairs (paper §5.2): for (N, 3) world points of *reliable* frame pixels with their (N, 3)
     current-space colours, the EM pixel each falls in; a pair is kept where the EM has data whose
     depth differs by at most ``max_depth_diff_m``. Returns (src (M, 3) float32 frame colours, dst
-    (M, 3) float32 EM colours in the reference space), in the order of the points."""
+    (M, 3) float32 EM colours in the reference space), in the order of the points. A non-finite point
+    falls in no pixel and gives no pair; non-finite colours are passed through as they are (the colour
+    fit drops such pairs and counts them, :func:`rgbd_envmap.colour.ccm_sums`)."""
     check_map(em)
     max_diff = _check_max_diff(max_depth_diff_m)
     pts = check_array(points_world, "points_world", shape=("N", 3), dtype="float").astype(np.float64, copy=False)
@@ -102,10 +102,11 @@ def collect_pairs(
 
 
 def frame_points(depth_m: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics, T_world_from_cam: RigidTransform) -> np.ndarray:
-    """(M, 3) float64 world points of the ``mask`` pixels of a z-depth image, in raster order."""
+    """(M, 3) float64 world points of the ``mask`` pixels of a z-depth image, in raster order. A
+    non-finite depth gives a non-finite point in its own row (:func:`update` skips such samples)."""
     _check_camera(intrinsics, T_world_from_cam)
-    check_array(depth_m, "depth_m", shape=intrinsics.shape, dtype="float")
-    check_array(mask, "mask", shape=intrinsics.shape, dtype="bool")
+    depth_m = check_array(depth_m, "depth_m", shape=intrinsics.shape, dtype="float")
+    mask = check_array(mask, "mask", shape=intrinsics.shape, dtype="bool")
     return kernels.world_points(np.ascontiguousarray(depth_m), np.ascontiguousarray(mask), pixel_rays(intrinsics),
                          np.ascontiguousarray(T_world_from_cam.rotation), np.ascontiguousarray(T_world_from_cam.translation))
 
@@ -123,6 +124,8 @@ def frame_samples(depth_m: np.ndarray, mask: np.ndarray, intrinsics: Intrinsics,
     Args:
         depth_m: (H, W) float z-depth in metres; mask: (H, W) bool; rgb: (H, W, 3) float linear RGB;
         flag: (H, W) bool or uint8 (non-zero is True), or None; matrix: (3, 3) finite, or None.
+        A non-finite depth or colour is passed through into its own sample (:func:`update` skips
+        such samples).
     """
     _check_camera(intrinsics, T_world_from_cam)
     shape = intrinsics.shape

@@ -155,6 +155,7 @@ def reprojected_coordinates(em: EnvironmentMap, offset: np.ndarray) -> tuple[np.
     """Where every pixel of ``em`` lands seen from ``em.origin + offset``, exactly as the depth warp
     of :func:`translate` computes it: (H, W) float32 continuous row ``v``, column ``u`` and distance
     (from the pixel's direction and ``depth_m``, valid or not; the warp uses valid pixels only)."""
+    check_map(em)
     off = check_array(offset, "offset", shape=(3,), dtype=("float", "int"), finite=True).astype(np.float64)
     h, w = em.height, em.width
     rs, rc, cs, cc = trig_columns(h, w)

@@ -92,11 +92,11 @@ import cv2
 import numpy as np
 
 from rgbd_envmap._kernels import kinect as kernels
-from rgbd_envmap.checks import check_array
+from rgbd_envmap.checks import check_array, check_number
 from rgbd_envmap.colour.nv21 import srgb8_to_linear_lut
 from rgbd_envmap.errors import InvalidInputError, RangeError
 from rgbd_envmap.geometry import pixel_rays
-from rgbd_envmap.types import Intrinsics, RGBDFrame, RigidTransform
+from rgbd_envmap.types import Intrinsics, RGBDFrame, RigidTransform, check_transform
 
 __all__ = [
     "KinectMergeConfig",
@@ -131,8 +131,9 @@ class KinectMergeConfig:
 
     def __post_init__(self) -> None:
         r = self.occlusion_radius_px
-        if isinstance(r, bool) or not isinstance(r, (int, np.integer)) or r < 0:
-            raise RangeError(f"KinectMergeConfig.occlusion_radius_px: expected an integer ≥ 0, got {r!r}")
+        if isinstance(r, bool) or not isinstance(r, (int, np.integer)) or not 0 <= r <= 64:
+            # The test reads a (2r + 1)² window per pixel: past 64 it costs seconds per frame.
+            raise RangeError(f"KinectMergeConfig.occlusion_radius_px: expected an integer in [0, 64], got {r!r}")
         object.__setattr__(self, "occlusion_radius_px", int(r))
         for name in ("max_stretch", "max_weight", "threshold", "threshold_abs_m", "near_m"):
             value = getattr(self, name)
@@ -254,6 +255,8 @@ def _check_intrinsics(intrinsics: object) -> Intrinsics:
 def _check_transform(T: object, name: str) -> RigidTransform:
     if not isinstance(T, RigidTransform):
         raise InvalidInputError(f"{name}: expected a RigidTransform, got {type(T).__name__}")
+    if name == "T_world_from_cam":  # a pose: named frames must lead into the world
+        check_transform(T, name, "world")
     return T
 
 
@@ -462,7 +465,7 @@ def kinect_rgbd_frame(
         kn = kn & (depth > 0) & np.isfinite(depth)
     depth = np.where(kn, depth, np.float32(0.0))
     rgb = srgb8_to_linear_lut()[rgb8]
-    return RGBDFrame(rgb, depth, kn, T, intr, int(timestamp_ns))
+    return RGBDFrame(rgb, depth, kn, T, intr, check_number(timestamp_ns, "timestamp_ns", integer=True))
 
 
 # --------------------------------------------------------------------------------------------------

@@ -35,11 +35,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgbd_envmap._kernels import tango as kernels
-from rgbd_envmap.checks import check_array, check_method
+from rgbd_envmap.checks import check_array, check_instance, check_method, check_number
 from rgbd_envmap.colour.nv21 import decode_nv21, srgb8_to_linear_lut
 from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.geometry import pixel_rays
-from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, Intrinsics, RGBDFrame, RigidTransform
+from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, Intrinsics, RGBDFrame, RigidTransform, check_transform
 
 __all__ = [
     "TangoIngestConfig",
@@ -90,29 +90,20 @@ class TangoIngestConfig:
     denoise_min_inliers: int = 6
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.confidence_threshold <= 1.0:
-            raise InvalidInputError(f"confidence_threshold: expected a value in [0, 1], got {self.confidence_threshold}")
-        check_method(self.registration, REGISTRATION_METHODS, "registration")
+        name = "TangoIngestConfig."
+        check_number(self.confidence_threshold, name + "confidence_threshold", low=0.0, high=1.0)
+        check_method(self.registration, REGISTRATION_METHODS, name + "registration")
         # Checked here, not at the first frame: an unknown name fails when the config is made.
         from rgbd_envmap.depth import FILL_METHODS, RELIABILITY_METHODS  # the depth package imports nothing of ingest
 
         check_method(self.reliability_method, RELIABILITY_METHODS, "TangoIngestConfig.reliability_method")
         if self.fill_method is not None:
             check_method(self.fill_method, FILL_METHODS, "TangoIngestConfig.fill_method")
-        if self.denoise_half_window is not None and (isinstance(self.denoise_half_window, bool)
-                                                     or not isinstance(self.denoise_half_window, int)
-                                                     or self.denoise_half_window < 1):
-            raise InvalidInputError(f"denoise_half_window: expected a positive integer or None, got {self.denoise_half_window!r}")
-        if not (isinstance(self.denoise_tol_rel, (int, float)) and not isinstance(self.denoise_tol_rel, bool)
-                and 0.0 < self.denoise_tol_rel < 1.0):
-            raise InvalidInputError(f"denoise_tol_rel: expected a fraction in (0, 1), got {self.denoise_tol_rel!r}")
-        if isinstance(self.denoise_min_inliers, bool) or not isinstance(self.denoise_min_inliers, int) \
-                or self.denoise_min_inliers < 3:
-            raise InvalidInputError(f"denoise_min_inliers: expected an integer ≥ 3, got {self.denoise_min_inliers!r}")
-        if self.fill_max_source_ratio is not None and not (isinstance(self.fill_max_source_ratio, (int, float))
-                                                           and not isinstance(self.fill_max_source_ratio, bool)
-                                                           and self.fill_max_source_ratio >= 1.0):
-            raise InvalidInputError(f"fill_max_source_ratio: expected a number ≥ 1 or None, got {self.fill_max_source_ratio!r}")
+        # The denoiser's window is (2 half + 1)²; past 32 the kernel's per-pixel fit is pointless.
+        check_number(self.denoise_half_window, name + "denoise_half_window", low=1, high=32, integer=True, optional=True)
+        check_number(self.denoise_tol_rel, name + "denoise_tol_rel", low=0.0, high=1.0, low_open=True, high_open=True)
+        check_number(self.denoise_min_inliers, name + "denoise_min_inliers", low=3, integer=True)
+        check_number(self.fill_max_source_ratio, name + "fill_max_source_ratio", low=1.0, optional=True)
 
     def fill(self, depth_m: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Hole filling with ``fill_method`` (not None): (depth, known_after, across_edges), the last
@@ -193,6 +184,20 @@ def _check_index_range(intr: Intrinsics, name: str, channels: int = 1) -> None:
 _FRAME_FIELDS = ("rgb", "depth_m", "known", "T_world_from_cam", "intrinsics", "timestamp_ns")
 
 
+_NO_CONFIG = object()
+
+
+def _check_packets(depth_packet: object, T_world_from_colour: object, calibration: object,
+                   config: object = _NO_CONFIG) -> None:
+    """The ingest's packet arguments: a DepthPacket, a pose into the world of the colour camera, a
+    Calibration and (if given) a TangoIngestConfig. About 1 µs."""
+    check_instance(depth_packet, DepthPacket, "depth_packet")
+    check_transform(T_world_from_colour, "T_world_from_colour", "world", "colour")
+    check_instance(calibration, Calibration, "calibration")
+    if config is not _NO_CONFIG:
+        check_instance(config, TangoIngestConfig, "config")
+
+
 def _owned_frame(rgb: np.ndarray, depth_m: np.ndarray, known: np.ndarray, T_world_from_cam: RigidTransform,
                  intrinsics: Intrinsics, timestamp_ns: int) -> RGBDFrame:
     """An :class:`RGBDFrame` of arrays a kernel here just allocated, with the shapes and dtypes the
@@ -219,8 +224,10 @@ def depth_image_from_points(
     Non-finite points, points at z ≤ 0 and points projecting outside the image are dropped; so are
     points with confidence below ``confidence_threshold`` (or NaN). Closest z wins a shared pixel.
     """
+    check_instance(intrinsics, Intrinsics, "intrinsics")
     pts = check_array(points_m, "points_m", shape=("N", 3), dtype="float")
     conf = check_array(confidence, "confidence", shape=(pts.shape[0],), dtype=("float", "int"))
+    confidence_threshold = check_number(confidence_threshold, "confidence_threshold", low=0.0, high=1.0)
     _check_index_range(intrinsics, "intrinsics")
     cam, dist = _camera_arrays(intrinsics)
     pts = np.ascontiguousarray(pts)
@@ -246,6 +253,8 @@ def colour_at_points(
     Returns ``(rgb (N, 3) float32 linear, valid (N,) bool)``; invalid points (behind the colour camera,
     outside its image, non-finite) have zero colour.
     """
+    check_instance(colour_intrinsics, Intrinsics, "colour_intrinsics")
+    check_transform(T_colour_from_depth, "T_colour_from_depth", "colour", "depth")
     pts = check_array(points_m, "points_m", shape=("N", 3), dtype="float")
     img = check_array(srgb8, "srgb8", shape=(colour_intrinsics.height, colour_intrinsics.width, 3), dtype=np.uint8)
     _check_index_range(colour_intrinsics, "colour_intrinsics", 3)
@@ -254,6 +263,7 @@ def colour_at_points(
 
 def decode_colour(packet: ColourPacket) -> np.ndarray:
     """(H, W, 3) uint8 sRGB image of a colour packet (NV21 decode)."""
+    check_instance(packet, ColourPacket, "packet")
     return decode_nv21(packet.nv21, packet.height, packet.width)
 
 
@@ -282,6 +292,7 @@ def colour_registration(
     depth_packet: DepthPacket, T_world_from_colour: RigidTransform, calibration: Calibration, method: str = "poses"
 ) -> RigidTransform:
     """``T_colour_from_depth`` for one depth packet and one colour frame (see module docstring)."""
+    _check_packets(depth_packet, T_world_from_colour, calibration)
     check_method(method, REGISTRATION_METHODS, "registration")
     if method == "extrinsics":
         return calibration.T_colour_from_depth
@@ -303,6 +314,7 @@ def rgbd_frame_from_packets(
     Returns the frame (known pixels carry depth and linear colour; pixels whose point falls outside
     the colour image are unknown) and the :class:`DepthImage` behind it (depth-only knowledge).
     """
+    _check_packets(depth_packet, T_world_from_colour, calibration, config)
     dc, cc = calibration.depth, calibration.colour
     pts = check_array(depth_packet.points_m, "points_m", shape=("N", 3), dtype="float")
     conf = check_array(depth_packet.confidence, "confidence", shape=(pts.shape[0],), dtype=("float", "int"))
@@ -335,6 +347,7 @@ def colour_filled_pixels(
     """A new frame with the hole-filled depth, whose newly known pixels take the colour seen at the 3-D
     point of their estimated depth. Pixels known before keep depth and colour unchanged; filled pixels
     whose point the colour camera does not see stay unknown."""
+    check_transform(T_colour_from_depth, "T_colour_from_depth", "colour", "depth")
     return colour_filled(frame, filled_depth_m, filled_known, srgb8, T_colour_from_depth.matrix, colour_intrinsics)
 
 
@@ -342,7 +355,10 @@ def colour_filled(frame: RGBDFrame, filled_depth_m: np.ndarray, filled_known: np
                   colour_from_depth: np.ndarray, colour_intrinsics: Intrinsics) -> RGBDFrame:
     """:func:`colour_filled_pixels` with the registration as a (4, 4) ``T_colour_from_depth`` matrix
     (:func:`registration_matrix`): the pipeline has the matrix from the ingest and skips building a
-    checked ``RigidTransform`` every depth frame. The matrix is not checked."""
+    checked ``RigidTransform`` every depth frame. The matrix is checked for its shape only."""
+    check_instance(frame, RGBDFrame, "frame")
+    check_instance(colour_intrinsics, Intrinsics, "colour_intrinsics")
+    colour_from_depth = check_array(colour_from_depth, "colour_from_depth", shape=(4, 4), dtype="float")
     h, w = frame.intrinsics.height, frame.intrinsics.width
     depth = check_array(filled_depth_m, "filled_depth_m", shape=(h, w), dtype="float")
     known = check_array(filled_known, "filled_known", shape=(h, w), dtype="bool")
@@ -361,6 +377,7 @@ def registration_matrix(depth_packet: DepthPacket, T_world_from_colour: RigidTra
                         method: str = "poses") -> np.ndarray:
     """:func:`colour_registration` as a (4, 4) matrix, without building the ``RigidTransform`` for the
     "poses" method (the same matrix ``rgbd_frame_from_packets`` uses, cached for the last pair of poses)."""
+    _check_packets(depth_packet, T_world_from_colour, calibration)
     check_method(method, REGISTRATION_METHODS, "registration")
     if method == "extrinsics":
         return calibration.T_colour_from_depth.matrix
@@ -402,6 +419,8 @@ def ingest_tango(
     """
     from rgbd_envmap.depth import mark_reliable  # the depth package imports nothing of ingest
     from rgbd_envmap.depth.denoise import denoise_frame
+
+    _check_packets(depth_packet, T_world_from_colour, calibration, config)
 
     frame, _ = rgbd_frame_from_packets(depth_packet, srgb8, T_world_from_colour, calibration, config)
     if config.denoise_half_window is not None:

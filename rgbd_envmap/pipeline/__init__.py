@@ -8,7 +8,7 @@
 """
 
 from rgbd_envmap.pipeline.capture import FILLED_PIXEL_MODES, CaptureConfig, CaptureStep, EnvironmentCapture
-from rgbd_envmap.pipeline.config import ObjectConfig, PipelineConfig, RenderConfig, ShadingConfig
+from rgbd_envmap.pipeline.config import ObjectConfig, PipelineConfig, PoseCheckConfig, RenderConfig, ShadingConfig
 from rgbd_envmap.pipeline.facade import (
     COLOUR_TOTAL,
     DEPTH_TOTAL,
@@ -21,7 +21,7 @@ from rgbd_envmap.pipeline.facade import (
 )
 
 __all__ = [
-    "Pipeline", "PipelineConfig", "ShadingConfig", "ObjectConfig", "RenderConfig", "DepthStep", "ColourStep",
+    "Pipeline", "PipelineConfig", "ShadingConfig", "ObjectConfig", "RenderConfig", "PoseCheckConfig", "DepthStep", "ColourStep",
     "EnvironmentCapture", "CaptureConfig", "CaptureStep", "FILLED_PIXEL_MODES",
     "STAGES", "RENDER_STAGES", "DEPTH_TOTAL", "COLOUR_TOTAL", "PAPER_TABLE1_MS",
 ]

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from rgbd_envmap.checks import check_method, check_positive_int
+from rgbd_envmap.checks import check_flag, check_method, check_number, check_positive_int
 from rgbd_envmap.envmap.translation import TRANSLATE_METHODS
 from rgbd_envmap.envmap_io import CONVENTIONS
 from rgbd_envmap.errors import InvalidInputError
@@ -19,7 +19,7 @@ from rgbd_envmap.ingest.kinect import KinectMergeConfig
 from rgbd_envmap.ingest.tango import TangoIngestConfig
 from rgbd_envmap.pipeline.capture import CaptureConfig
 
-__all__ = ["ShadingConfig", "ObjectConfig", "RenderConfig", "PipelineConfig"]
+__all__ = ["ShadingConfig", "ObjectConfig", "RenderConfig", "PoseCheckConfig", "PipelineConfig"]
 
 
 @dataclass(frozen=True)
@@ -71,6 +71,34 @@ class RenderConfig:
 
 
 @dataclass(frozen=True)
+class PoseCheckConfig:
+    """Which reported poses a depth packet may not be projected with (ours; the paper trusts the
+    tracker). A hand-held device moves continuously: a pose that moved more than ``max_speed_m_s``
+    × Δt + ``slack_m`` or turned more than ``max_turn_deg_s`` × Δt + ``slack_deg`` since the previous
+    packet's (either stream, through the calibration) is a jump. Depth packets are skipped from the
+    jump until ``jump_hold_s`` after it: which side of a jump is right is unknown, and a wrong pose
+    that snaps back within the hold never reaches the map (a jump that stays is accepted after it).
+    A depth pose bit for bit equal to the previous depth packet's is a frozen tracker
+    (``skip_frozen``). The slacks cover tracking noise of about a centimetre and a degree."""
+
+    enabled: bool = True
+    max_speed_m_s: float = 2.0
+    max_turn_deg_s: float = 720.0
+    slack_m: float = 0.03
+    slack_deg: float = 3.0
+    jump_hold_s: float = 1.0
+    skip_frozen: bool = True
+
+    def __post_init__(self) -> None:
+        check_flag(self.enabled, "pose_check.enabled")
+        check_flag(self.skip_frozen, "pose_check.skip_frozen")
+        for name in ("max_speed_m_s", "max_turn_deg_s"):
+            check_number(getattr(self, name), f"pose_check.{name}", low=0.0, low_open=True)
+        for name in ("slack_m", "slack_deg", "jump_hold_s"):
+            check_number(getattr(self, name), f"pose_check.{name}", low=0.0)
+
+
+@dataclass(frozen=True)
 class PipelineConfig:
     """Every setting of the pipeline (loadable from YAML: :mod:`rgbd_envmap.config`). Defaults are the
     paper's where it gives one; docs/guide.md lists which are ours."""
@@ -95,10 +123,14 @@ class PipelineConfig:
     #: ... on the merged frame subsampled by this stride (2: 320×240 samples, 307k → 77k per update;
     #: the update's footprint splat scales with the focal length, so coverage holds).
     kinect_em_stride: int = 2
+    #: reported poses the pipeline does not trust (jumps, a frozen tracker; ours).
+    pose_check: PoseCheckConfig = field(default_factory=PoseCheckConfig)
 
     def __post_init__(self) -> None:
         check_method(self.translation_method, TRANSLATE_METHODS, "translation_method")
         check_positive_int(self.threads, "PipelineConfig.threads")
+        if not isinstance(self.pose_check, PoseCheckConfig):
+            raise InvalidInputError(f"pose_check: expected a PoseCheckConfig, got {type(self.pose_check).__name__}")
         if not self.max_colour_lag_ms >= 0:
             raise InvalidInputError(f"max_colour_lag_ms: expected ≥ 0, got {self.max_colour_lag_ms}")
         if self.kinect_em_every < 1 or self.kinect_em_stride < 1:

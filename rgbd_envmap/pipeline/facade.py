@@ -24,6 +24,14 @@ built, and the object is shaded from them; depth packets still correct and updat
 (stages "Calculate SH coefficients*" and "Shade object (PRT)" then do not run per packet). A real HDR
 map is the usual baseline for captured lighting.
 
+**A faulty device.** Packets the pipeline cannot use are skipped and counted in :attr:`Pipeline.skipped`
+under a reason of :data:`SKIP_REASONS`: a packet not after the previous one of its stream (delivered
+late), packets missing from a stream (counted from the stream's rate), an empty point cloud, a
+depth packet after a pose jump or with a frozen pose (:class:`~rgbd_envmap.pipeline.config.PoseCheckConfig`),
+a colour frame that repeats the previous image (shown as it is, without the object, and not paired)
+and a depth packet with no colour frame within ``max_colour_lag_ms``. None of these checks fires on a
+well-behaved device, whose results they leave unchanged.
+
 The object stands on the surface under the EM origin: its base is ``object.base_below_origin_m``
 below the origin (the EM origin is the paper's "virtual object position"). :meth:`Pipeline.move_object`
 displaces it; the lighting then comes from the EM translated to the new position (§6.2), either as
@@ -36,6 +44,7 @@ References:
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -55,7 +64,20 @@ from rgbd_envmap.pipeline.config import PipelineConfig
 from rgbd_envmap.timing import StageTimer
 from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, RGBDFrame
 
-__all__ = ["DepthStep", "ColourStep", "Pipeline", "STAGES", "DEPTH_TOTAL", "COLOUR_TOTAL", "PAPER_TABLE1_MS"]
+__all__ = ["DepthStep", "ColourStep", "Pipeline", "STAGES", "DEPTH_TOTAL", "COLOUR_TOTAL", "PAPER_TABLE1_MS", "SKIP_REASONS"]
+
+#: why a packet was skipped (the keys of :attr:`Pipeline.skipped`) and what that means.
+SKIP_REASONS = {
+    "depth_out_of_order": "a depth packet whose timestamp is not after the previous depth packet's (delivered late)",
+    "colour_out_of_order": "a colour frame whose timestamp is not after the previous frame's (delivered late)",
+    "depth_missing": "depth packets that never arrived (a gap in the stream, counted from its rate)",
+    "colour_missing": "colour frames that never arrived (a gap in the stream, counted from its rate)",
+    "depth_no_points": "an empty point cloud",
+    "depth_pose_jump": "a depth packet within pose_check.jump_hold_s of a jump of the reported pose (faster than a hand moves)",
+    "depth_pose_frozen": "a depth pose bit for bit equal to the previous depth packet's (a frozen tracker)",
+    "colour_frozen_frame": "a colour frame repeating the previous image: shown without the object, not paired",
+    "depth_no_colour": "a depth packet with no colour frame within max_colour_lag_ms",
+}
 
 #: stage names, in pipeline order, and the paper's Table 1 figure for each (None: no counterpart).
 STAGES = (
@@ -169,6 +191,15 @@ class Pipeline:
         self._last_colour: tuple[ColourPacket, np.ndarray] | None = None
         self.depth_steps = 0
         self.dropped_depth = 0
+        #: {reason: packets skipped} (reasons: :data:`SKIP_REASONS`; only those that occurred).
+        self.skipped: dict[str, int] = {}
+        self._stream: dict[str, list] = {}  # kind -> [first ns, last ns, last grid index]
+        self._last_pose: tuple[int, np.ndarray] | None = None  # the previous packet's device (colour) pose
+        self._last_depth_pose: np.ndarray | None = None
+        self._jumped = False
+        self._jump_ns: int | None = None  # the last jump's timestamp
+        self._prev_nv21: np.ndarray | None = None
+        self._colour_from_depth = calibration.T_colour_from_depth.inverse().matrix
         self._renderer = None
         self._object = None
         self._transfer = None
@@ -226,48 +257,138 @@ class Pipeline:
 
     # --- packets -------------------------------------------------------------------------------------
 
+    def _skip(self, reason: str, n: int = 1) -> None:
+        self.skipped[reason] = self.skipped.get(reason, 0) + n
+        if self.skipped[reason] <= 0:
+            del self.skipped[reason]
+
+    def _in_order(self, kind: str, timestamp_ns: int) -> bool:
+        """False for a packet not after the previous one of its stream (skipped); counts the packets
+        missing before it from the stream's rate (grid index from the first packet, so timestamp
+        jitter below half a period is not a gap)."""
+        rate = self.calibration.depth_rate_hz if kind == "depth" else self.calibration.colour_rate_hz
+        s = self._stream.get(kind)
+        if s is None:
+            self._stream[kind] = [timestamp_ns, timestamp_ns, 0]
+            return True
+        if timestamp_ns <= s[1]:
+            self._skip(f"{kind}_out_of_order")
+            if self.skipped.get(f"{kind}_missing"):
+                self._skip(f"{kind}_missing", -1)  # counted as missing when its successor came first
+            return False
+        s[1] = timestamp_ns
+        if rate and rate > 0:
+            index = round((timestamp_ns - s[0]) * 1e-9 * rate)
+            if index > s[2] + 1:
+                self._skip(f"{kind}_missing", index - s[2] - 1)
+            s[2] = max(index, s[2])
+        return True
+
+    def _check_pose(self, timestamp_ns: int, T_world_from_colour: np.ndarray) -> None:
+        """Flags a jump of the device's reported pose since the previous packet's (see PoseCheckConfig)."""
+        pc = self.config.pose_check
+        last, self._last_pose = self._last_pose, (timestamp_ns, T_world_from_colour)
+        if last is None or not pc.enabled:
+            return
+        dt = abs(timestamp_ns - last[0]) * 1e-9
+        a, b = last[1], T_world_from_colour
+        step = a[:3, 3] - b[:3, 3]
+        cos = (np.trace(a[:3, :3].T @ b[:3, :3]) - 1.0) * 0.5
+        turn = math.degrees(math.acos(min(1.0, max(-1.0, cos))))
+        if math.sqrt(step @ step) > pc.max_speed_m_s * dt + pc.slack_m or turn > pc.max_turn_deg_s * dt + pc.slack_deg:
+            self._jumped = True
+            self._jump_ns = timestamp_ns
+
+    def _usable_depth(self, packet: DepthPacket) -> bool:
+        """Checks of a depth packet on arrival (order, points, pose); False: skipped and counted."""
+        if not self._in_order("depth", packet.timestamp_ns):
+            return False
+        pose = packet.T_world_from_depth.matrix
+        self._check_pose(packet.timestamp_ns, pose @ self._colour_from_depth)
+        frozen = self._last_depth_pose is not None and np.array_equal(pose, self._last_depth_pose)
+        self._last_depth_pose = pose
+        if len(packet.points_m) == 0:
+            self._skip("depth_no_points")
+            return False
+        if frozen and self.config.pose_check.enabled and self.config.pose_check.skip_frozen:
+            self._skip("depth_pose_frozen")
+            return False
+        return True
+
+    def _pose_jumped(self, timestamp_ns: int) -> bool:
+        """A jump since the last depth step, or within ``pose_check.jump_hold_s`` before this packet:
+        the depth packet about to be processed is skipped."""
+        held = self._jump_ns is not None and timestamp_ns - self._jump_ns < self.config.pose_check.jump_hold_s * 1e9
+        if not (self._jumped or held):
+            return False
+        self._jumped = False
+        self._skip("depth_pose_jump")
+        return True
+
+    def _frozen_frame(self, nv21: np.ndarray) -> bool:
+        prev, self._prev_nv21 = self._prev_nv21, nv21
+        if prev is None or prev.shape != nv21.shape:
+            return False
+        # A strided probe first: two different frames differ within a few hundred bytes.
+        return bool(np.array_equal(prev.reshape(-1)[::257], nv21.reshape(-1)[::257]) and np.array_equal(prev, nv21))
+
     def feed(self, packet: DepthPacket | ColourPacket) -> list[DepthStep | ColourStep]:
-        """Process one packet; returns what it produced (a depth step and / or a composited frame)."""
+        """Process one packet; returns what it produced (a depth step and / or a composited frame).
+        Packets it cannot use are skipped and counted in :attr:`skipped`."""
         if self._merger is not None:
             raise InvalidInputError("feed: a 'kinect' pipeline takes registered RGB-D frames; use feed_rgbd")
         lag_ns = self.config.max_colour_lag_ms * 1e6
         out: list[DepthStep | ColourStep] = []
         if isinstance(packet, DepthPacket):
+            if not self._usable_depth(packet):
+                return out
             if self._pending_depth is not None:
-                self.dropped_depth += 1
+                self._drop_pending()
             self._pending_depth = packet
             last = self._last_colour
             if last is not None and abs(last[0].timestamp_ns - packet.timestamp_ns) <= lag_ns:
-                self.timer.begin("depth")
-                out.append(self._depth_step(packet, last[0], last[1]))
                 self._pending_depth = None
+                if not self._pose_jumped(packet.timestamp_ns):
+                    self.timer.begin("depth")
+                    out.append(self._depth_step(packet, last[0], last[1]))
             return out
         if not isinstance(packet, ColourPacket):
             raise InvalidInputError(f"packet: expected a DepthPacket or ColourPacket, got {type(packet).__name__}")
+        if not self._in_order("colour", packet.timestamp_ns):
+            return out
+        self._check_pose(packet.timestamp_ns, packet.T_world_from_colour.matrix)
         colour_frame = self.timer.begin("colour")
         t0 = time.perf_counter()
         srgb8 = decode_nv21(packet.nv21, packet.height, packet.width)
         self._decode_ms = (time.perf_counter() - t0) * 1e3
         self.timer.add("Decode colour frame", self._decode_ms)
+        if self._frozen_frame(packet.nv21):
+            self._skip("colour_frozen_frame")
+            out.append(ColourStep(packet.timestamp_ns, None, srgb8))
+            return out
         self._last_colour = (packet, srgb8)
         pending = self._pending_depth
         if pending is not None:
             if abs(packet.timestamp_ns - pending.timestamp_ns) <= lag_ns:
-                self.timer.begin("depth")
-                out.append(self._depth_step(pending, packet, srgb8))
                 self._pending_depth = None
-                self.timer.resume(colour_frame, "colour")
+                if not self._pose_jumped(pending.timestamp_ns):
+                    self.timer.begin("depth")
+                    out.append(self._depth_step(pending, packet, srgb8))
+                    self.timer.resume(colour_frame, "colour")
             elif packet.timestamp_ns - pending.timestamp_ns > lag_ns:
-                self.dropped_depth += 1
-                self._pending_depth = None
+                self._drop_pending()
         out.append(self._colour_step(packet, srgb8))
         return out
+
+    def _drop_pending(self) -> None:
+        self.dropped_depth += 1
+        self._skip("depth_no_colour")
+        self._pending_depth = None
 
     def finish(self) -> None:
         """End of stream: a depth packet still waiting for its colour frame is dropped (counted)."""
         if self._pending_depth is not None:
-            self.dropped_depth += 1
-            self._pending_depth = None
+            self._drop_pending()
 
     def feed_rgbd(self, timestamp_ns: int, rgb_srgb8: np.ndarray, depth_m: np.ndarray, known: np.ndarray,
                   T_world_from_cam) -> list[DepthStep | ColourStep]:

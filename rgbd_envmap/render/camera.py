@@ -14,7 +14,7 @@ import numpy as np
 from rgbd_envmap._kernels import raster_camera as kernels
 from rgbd_envmap.checks import check_array, check_range
 from rgbd_envmap.errors import RangeError
-from rgbd_envmap.types import Intrinsics, RigidTransform
+from rgbd_envmap.types import Intrinsics, RigidTransform, check_transform
 
 __all__ = ["ProjectedMesh", "as_pose", "check_inputs", "project_meshes", "to_camera"]
 
@@ -25,7 +25,7 @@ _ALPHA_SLACK = 1e-6
 def as_pose(T_world_from_cam: object) -> RigidTransform:
     """The camera pose as a :class:`RigidTransform`: given as one, or as a finite (4, 4) matrix."""
     if isinstance(T_world_from_cam, RigidTransform):
-        return T_world_from_cam
+        return check_transform(T_world_from_cam, "T_world_from_cam", "world")
     m = check_array(T_world_from_cam, "T_world_from_cam", shape=(4, 4), dtype=("float", "int"), finite=True)
     return RigidTransform(m.astype(np.float64), "world", "cam")
 

@@ -11,8 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgbd_envmap.checks import check_array
-from rgbd_envmap.errors import InvalidInputError, RgbdEnvmapError
+from rgbd_envmap.checks import check_array, check_number
+from rgbd_envmap.errors import InvalidInputError, RangeError, RgbdEnvmapError
+from rgbd_envmap.types import MAX_IMAGE_PIXELS
 
 __all__ = ["Layer", "RendererUnavailableError"]
 
@@ -60,7 +61,13 @@ class Layer:
 
     @classmethod
     def empty(cls, height: int, width: int) -> Layer:
-        """A layer with nothing visible (what an object behind the camera or out of view gives)."""
+        """A layer with nothing visible (what an object behind the camera or out of view gives); at
+        most :data:`rgbd_envmap.types.MAX_IMAGE_PIXELS` pixels (20 bytes each)."""
+        height = check_number(height, "height", low=1, integer=True)
+        width = check_number(width, "width", low=1, integer=True)
+        if height * width > MAX_IMAGE_PIXELS:
+            raise RangeError(f"height×width: expected at most {MAX_IMAGE_PIXELS:,} pixels, got {height}×{width}; "
+                             f"the layer would take about {height * width * 20 / 2**30:.3g} GiB")
         return cls(np.zeros((height, width, 3), np.float32), np.zeros((height, width), bool),
                    np.zeros((height, width), np.float32), None)
 

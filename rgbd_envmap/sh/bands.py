@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgbd_envmap.checks import check_array, check_positive_int
+from rgbd_envmap.checks import check_array, check_number, check_positive_int
 from rgbd_envmap.errors import DTypeError, InvalidInputError, NonFiniteError, RangeError, ShapeError
 from rgbd_envmap.sh.basis import n_bands
 
@@ -150,12 +150,7 @@ def select_bands(coeffs: np.ndarray, transfer: np.ndarray | TransferGram, tolera
     """
     L = check_array(coeffs, "coeffs", shape=("K", 3), dtype=("float", "int"), finite=True).astype(np.float64)
     nb_c = n_bands(L.shape[0])
-    try:
-        tol = float(tolerance)
-    except (TypeError, ValueError) as exc:
-        raise DTypeError(f"tolerance: expected a number, got {tolerance!r}") from exc
-    if not (math.isfinite(tol) and tol >= 0.0):
-        raise RangeError(f"tolerance: expected a finite value ≥ 0, got {tolerance!r}")
+    tol = check_number(tolerance, "tolerance", low=0.0)
     if isinstance(transfer, TransferGram):
         if weights is not None:
             raise InvalidInputError("weights: a TransferGram already includes its vertex weights; "

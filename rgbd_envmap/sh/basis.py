@@ -53,7 +53,7 @@ import math
 
 import numpy as np
 
-from rgbd_envmap.checks import check_array, check_positive_int
+from rgbd_envmap.checks import check_array, check_number, check_positive_int
 from rgbd_envmap.errors import RangeError, ShapeError
 
 __all__ = ["basis", "irradiance", "lambertian_band_factors", "legendre", "n_bands", "check_bands", "MAX_BANDS"]
@@ -90,6 +90,7 @@ def legendre(z: np.ndarray, bands: int) -> np.ndarray:
     b = √(((l − 1)² − m²)/(4(l − 1)² − 1)).
     """
     bands = check_bands(bands)
+    z = check_array(z, "z", dtype=("float", "int"))  # NaN stays NaN, in its own entry only
     out = np.empty(z.shape + (bands * bands,), dtype=np.float64)
     q_mm = np.full(z.shape, 1.0 / math.sqrt(4.0 * math.pi))
     for m in range(bands):
@@ -118,7 +119,10 @@ def legendre(z: np.ndarray, bands: int) -> np.ndarray:
 
 def n_bands(n_coeffs: int) -> int:
     """Number of bands n for n² coefficients; :class:`ShapeError` unless ``n_coeffs`` is a square ≥ 1."""
-    n = math.isqrt(int(n_coeffs))
+    n_coeffs = check_number(n_coeffs, "n_coeffs", integer=True)
+    if n_coeffs < 1:
+        raise ShapeError(f"coeffs: expected n² rows (1, 4, 9, 16, 25, ...), got {n_coeffs}")
+    n = math.isqrt(n_coeffs)
     if n < 1 or n * n != n_coeffs:
         raise ShapeError(f"coeffs: expected n² rows (1, 4, 9, 16, 25, ...), got {n_coeffs}")
     return n

@@ -103,6 +103,9 @@ class IncrementalProjection:
         Raises:
             ShapeError: an empty map. NonFiniteError: NaN or infinity at a contributing pixel.
         """
+        from rgbd_envmap.envmap.map import check_map  # the envmap package imports nothing of sh
+
+        check_map(em)
         tracked = self._map() if self._map is not None else None
         changes = em.take_changes() if tracked is em else None
         # Past a share of the pixels (a frame from inside the trusted sphere rewrites everything it

@@ -40,9 +40,9 @@ from typing import NamedTuple
 import numpy as np
 
 from rgbd_envmap._kernels import sh_fill, sh_projection
-from rgbd_envmap.checks import check_array, check_finite, check_positive_int
-from rgbd_envmap.errors import NonFiniteError, ShapeError
-from rgbd_envmap.geometry import equirect_solid_angles
+from rgbd_envmap.checks import check_array, check_finite, check_finite_where, check_positive_int
+from rgbd_envmap.errors import NonFiniteError, RangeError, ShapeError
+from rgbd_envmap.geometry import MAX_EQUIRECT_PIXELS, equirect_solid_angles
 from rgbd_envmap.sh.basis import check_bands, legendre
 
 __all__ = [
@@ -129,6 +129,7 @@ def fill_missing(radiance: np.ndarray, valid: np.ndarray, radius_px: int = FILL_
     """
     rad = check_array(radiance, "radiance", shape=("H", "W", 3), dtype=("float", "int"))
     valid = check_array(valid, "valid", shape=rad.shape[:2], dtype="bool")
+    check_finite_where(rad, valid, "radiance", "valid")
     radius_px = check_positive_int(radius_px, "radius_px")
     row_ptr, col, src, _, _ = _plan(valid, radius_px)
     out = rad.astype(np.float32, order="C")  # a copy; its missing pixels are overwritten below
@@ -163,7 +164,11 @@ class ProjectionTables(NamedTuple):
 def projection_tables(height: int, width: int, bands: int) -> ProjectionTables:
     """The cached :class:`ProjectionTables` of an equirect map of ``height`` × ``width`` pixels (they
     depend only on the map size and the bands)."""
-    n = bands
+    n = check_bands(bands)
+    height = check_positive_int(height, "height")
+    width = check_positive_int(width, "width")
+    if height * width > MAX_EQUIRECT_PIXELS:
+        raise RangeError(f"height×width: expected at most {MAX_EQUIRECT_PIXELS:,} pixels, got {height}×{width}")
     folded = width % 4 == 0
     nblocks = -(-n // BLOCK)
     ncols = width // 4 if folded else width

@@ -175,3 +175,44 @@ def write_icl_nuim(root: Path, n_frames: int = 12, seed: int = 0, *, flip: bool 
     (root / "associations.txt").write_text("\n".join(assoc) + "\n")
     (root / "livingRoom0.gt.freiburg").write_text("\n".join(gt) + "\n")
     return {"root": root, "raycaster": rc}
+
+
+# --- Redwood (Open3D's layout: colors/ JPEG, depth/ 16-bit PNG in mm, camera_intrinsic.json, .log) ------
+
+
+def log_block(frame: int, R: np.ndarray, t: np.ndarray) -> str:
+    """One frame of a ``.log`` trajectory as the Redwood data writes it: "frame frame frame+1" and the
+    4×4 camera-to-world matrix, one row a line."""
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = R, t
+    return f"{frame} {frame} {frame + 1}\n" + "\n".join(" ".join(f"{x:.8f}" for x in row) for row in m) + "\n"
+
+
+def write_redwood(root: Path, n_frames: int = 12, seed: int = 0, *, K: np.ndarray | None = None, intrinsic_json: bool = True,
+                  trajectory: str | None = "room-traj.txt", jpeg_quality: int = 95) -> dict:
+    """A Redwood / Augmented ICL-NUIM folder written by hand: ``colors/NNNNN.jpg`` (8-bit JPEG),
+    ``depth/NNNNN.png`` (16-bit, millimetres), Open3D's ``camera_intrinsic.json`` (width, height,
+    ``intrinsic_matrix`` column-major) unless ``intrinsic_json`` is False (then the PrimeSense default
+    applies and ``K`` must be it), and the ``.log`` trajectory (``trajectory``: its file name; None:
+    no trajectory). Frames are 1/30 s apart on :func:`pose_at`'s turn."""
+    rng = np.random.default_rng(seed)
+    rc = SceneRaycaster(room_scene())
+    K = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]]) if K is None else K
+    root.mkdir(parents=True)
+    blocks = []
+    for k in range(n_frames):
+        R, t = pose_at(k / 30.0 * 3.0)  # three times the turn of the TUM writer: more of the room in few frames
+        rgb, z = render(rc, K, None, R, t)
+        write_png(root / "depth" / f"{k:05d}.png", depth_png(z, rng, units_per_m=1000.0, dropout=0.0))
+        (root / "colors").mkdir(exist_ok=True)
+        ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])
+        assert ok
+        (root / "colors" / f"{k:05d}.jpg").write_bytes(buf.tobytes())
+        blocks.append(log_block(k, R, t))
+    if intrinsic_json:
+        m = [K[0, 0], 0.0, 0.0, 0.0, K[1, 1], 0.0, K[0, 2], K[1, 2], 1.0]  # column-major, as Open3D writes it
+        (root / "camera_intrinsic.json").write_text(
+            '{\n\t"height" : %d,\n\t"intrinsic_matrix" : [ %s ],\n\t"width" : %d\n}\n' % (H, ", ".join(f"{x:g}" for x in m), W))
+    if trajectory is not None:
+        (root / trajectory).write_text("".join(blocks))
+    return {"root": root, "raycaster": rc, "blocks": blocks, "K": K}

@@ -84,7 +84,8 @@ def _pixel(direction, h, w):
 
 def test_a_hand_written_capture_puts_arkit_up_at_the_zenith(hand_capture, tmp_path):
     origin = tuple(float(v) for v in (hand.POSITION_ARKIT[0], -hand.POSITION_ARKIT[2], hand.POSITION_ARKIT[1]))
-    config = apply_overrides(CONFIG, ["capture.colour_correction=false"])  # six views that hardly overlap
+    # six views that hardly overlap, taken far apart in a short time: no colour correction, no pose-jump check
+    config = apply_overrides(CONFIG, ["capture.colour_correction=false", "pose_check.enabled=false"])
     summary = run_replay_phone(ReplayOptions(hand_capture, tmp_path / "run", origin=origin, config=config, video=False,
                                              progress=False), depth_rate_hz=None)
     assert summary["depth_frames_processed"] == 6 and summary["em_origin"] == list(origin)
@@ -109,7 +110,7 @@ def test_an_unreadable_depth_image_is_skipped_and_counted_or_ends_a_strict_repla
     shutil.copytree(hand_capture, copy)
     victim = copy / "depth" / "000001.png"
     victim.write_bytes(victim.read_bytes()[:64])
-    config = apply_overrides(CONFIG, ["capture.colour_correction=false"])
+    config = apply_overrides(CONFIG, ["capture.colour_correction=false", "pose_check.enabled=false"])
     summary = run_replay_phone(ReplayOptions(copy, tmp_path / "run", config=config, video=False, progress=False), depth_rate_hz=None)
     assert summary["skipped"] == {"depth": 1} and "000001.png" in summary["skipped_files"][0]
     assert summary["depth_frames_processed"] == 5 and summary["colour_packets"] == 6

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from apps.cli import main
-from apps.replay import LAYOUTS, Layout, detect_layout
+from rgbd_envmap.sources.frames import SOURCE_LAYOUTS, SourceLayout, detect_source_layout
 from rgbd_envmap import metrics
 from rgbd_envmap.errors import LogFormatError
 from rgbd_envmap.tum import TUM_INTRINSICS
@@ -185,35 +185,50 @@ def test_an_unknown_folder_fails_with_the_layouts_and_the_files_found(tmp_path, 
     assert replay(tmp_path, tmp_path / "out") == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "calibration.json: missing file" not in err
-    for layout in LAYOUTS:
+    for layout in SOURCE_LAYOUTS:
         assert layout.name in err and layout.files in err
     assert "found images/, poses.csv" in err
     assert replay(tmp_path / "nothing_here", tmp_path / "out") == 1
     assert "not a folder" in capsys.readouterr().err
     assert replay(tmp_path / "images", tmp_path / "out") == 1
     assert "found nothing (empty folder)" in capsys.readouterr().err
+    (tmp_path / "notes.txt").write_text("hello")
+    assert replay(tmp_path / "notes.txt", tmp_path / "out") == 1  # a file that is no .bag
+    assert "not a folder" in capsys.readouterr().err
 
 
 def test_layouts_are_detected_in_table_order_and_the_table_extends(icl, tum, tmp_path):
-    assert detect_layout(tum["root"]).name == "TUM RGB-D"
-    assert detect_layout(icl[0]["root"]).name == "ICL-NUIM"
+    assert detect_source_layout(tum["root"]).name == "TUM RGB-D"
+    assert detect_source_layout(icl[0]["root"]).name == "ICL-NUIM"
     (tmp_path / "calibration.json").write_text("{}")
-    assert detect_layout(tmp_path).name == "session log"
+    assert detect_source_layout(tmp_path).name == "session log"
     other = tmp_path / "phone"
     other.mkdir()
     (other / "odometry.csv").write_text("")
-    with pytest.raises(LogFormatError, match="not a layout replay knows"):
-        detect_layout(other)
-    extra = Layout("Stray Scanner", "odometry.csv + rgb.mp4", lambda p: (p / "odometry.csv").is_file(), lambda opts: {})
-    LAYOUTS.append(extra)
-    try:
-        assert detect_layout(other) is extra
-    finally:
-        LAYOUTS.remove(extra)
+    with pytest.raises(LogFormatError, match="not a known recording layout"):
+        detect_source_layout(other)
+    extra = SourceLayout("Stray Scanner", "odometry.csv + rgb.mp4", lambda p: (p / "odometry.csv").is_file(),
+                         lambda path, options: None)
+    assert detect_source_layout(other, (*SOURCE_LAYOUTS, extra)) is extra
 
 
 def test_sequence_options_do_not_apply_to_a_session_log(tmp_path, capsys):
     (tmp_path / "calibration.json").write_text("{}")
     assert replay(tmp_path, tmp_path / "out", "--intrinsics", "fr1", "--poses", "x.txt") == 2
     err = capsys.readouterr().err
-    assert "--intrinsics, --poses: apply to RGB-D sequences" in err and "session log" in err
+    assert "--intrinsics, --poses: apply to TUM RGB-D, ICL-NUIM, Redwood, RealSense" in err and "session log" in err
+
+
+def test_the_tum_depth_correction_applies_to_tum_only(icl, capsys, tmp_path):
+    assert replay(icl[0]["root"], tmp_path / "out", "--tum-depth-correction") == 2
+    err = capsys.readouterr().err
+    assert "--tum-depth-correction: applies to TUM RGB-D, not to a recording of the ICL-NUIM layout" in err
+
+
+def test_replay_help_lists_every_layout_and_where_its_poses_come_from(capsys):
+    with pytest.raises(SystemExit):
+        main(["replay", "--help"])
+    out = capsys.readouterr().out
+    for layout in SOURCE_LAYOUTS:
+        assert f"  {layout.name}: {layout.files}; poses: {layout.poses}" in out
+    assert "--poses FILE" in out and ".log" in out

@@ -389,7 +389,7 @@ def test_depth_packet_rejects_mismatched_lengths_and_shapes():
 
 
 def test_depth_packet_rejects_non_transform_pose():
-    with pytest.raises(InvalidInputError):
+    with pytest.raises(DTypeError, match="T_world_from_depth"):  # a wrong type is a TypeError
         _depth_packet(T_world_from_depth=np.eye(4))
 
 
@@ -454,7 +454,7 @@ def test_colour_packet_sizes_and_immutability():
     assert not p.nv21.flags.writeable
     assert p == _colour_packet(np.arange(6 * 8, dtype=np.uint8).reshape(6, 8))
     assert p != _colour_packet(buf)
-    with pytest.raises(InvalidInputError):
+    with pytest.raises(DTypeError, match="T_world_from_colour"):
         ColourPacket(timestamp_ns=0, nv21=np.zeros((6, 8), np.uint8), T_world_from_colour=None)  # type: ignore[arg-type]
 
 
