@@ -13,25 +13,13 @@ import heapq
 
 import numpy as np
 
+from rgbd_envmap.reference.sh_projection import pixel_directions, pixel_solid_angles  # noqa: F401 (used here and by tests)
+
 __all__ = ["pixel_directions", "pixel_solid_angles", "map_integral", "brute_force_irradiance", "luminance_cdf",
            "cell_sums", "pharr", "q2tree", "room_map", "LUMINANCE"]
 
 #: Rec. 709 luminance weights.
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-
-
-def pixel_directions(height: int, width: int) -> np.ndarray:
-    """(H, W, 3) float64 unit directions of the pixel centres."""
-    theta = np.pi * (np.arange(height) + 0.5) / height
-    phi = 2.0 * np.pi * (np.arange(width) + 0.5) / width - np.pi
-    t, p = np.meshgrid(theta, phi, indexing="ij")
-    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
-
-
-def pixel_solid_angles(height: int, width: int) -> np.ndarray:
-    """(H, W) float64 exact pixel solid angles (2π / W)(cos θ_top − cos θ_bottom)."""
-    edges = np.cos(np.pi * np.arange(height + 1) / height)
-    return np.repeat(((2.0 * np.pi / width) * (edges[:-1] - edges[1:]))[:, None], width, axis=1)
 
 
 def _masked(radiance, valid):
