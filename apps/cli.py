@@ -132,6 +132,21 @@ def build_parser() -> argparse.ArgumentParser:
                      "colour (30 Hz), recorded as a TUM RGB-D sequence in OUT/session and replayed through the Kinect path; "
                      "phone: a LiDAR phone (256×192 depth registered to 4:3 colour), recorded in the Stray Scanner layout "
                      "in OUT/session and replayed through the mobile path")
+    sim.add_argument("--reference-every", type=float, default=5.0, metavar="SECONDS",
+                     help="render a reference composite (the scene with and without the virtual object, in linear radiance) for "
+                     "the first colour frame after every SECONDS of the session, into OUT/reference/, and score the "
+                     "composite against it in accuracy.json (composite_*_rel_rmse); 0: none")
+    sim.add_argument("--reference-method", choices=("gather", "path"), default="gather",
+                     help="gather: the frame without the object is the bake (Mitsuba's global illumination) and only the "
+                     "object's pixels and the change it makes around it are traced (little noise); path: both frames "
+                     "path-traced by Mitsuba")
+    sim.add_argument("--reference-spp", type=int, default=64, metavar="N",
+                     help="per pixel near the object: directions towards it (gather) or paths (path)")
+    sim.add_argument("--reference-object-spp", type=int, default=256, metavar="N",
+                     help="paths per pixel of the object itself (gather)")
+    sim.add_argument("--reference-radius", type=float, default=0.5, metavar="METRES",
+                     help="render the pixels that see the object or a surface within METRES of it (the rest shows "
+                     "the bake in both frames); 0: the whole frame")
     from sim.faults import add_arguments as add_fault_args
 
     add_fault_args(sim)
@@ -236,6 +251,11 @@ def main(argv: list[str] | None = None) -> int:
 
             check_duration(args.duration, "--duration")  # inf or 1e7 before anything is allocated or written
             config = _pipeline_config(args)  # usage errors before anything is written
+            from apps.reference_frames import ReferenceOptions
+
+            reference = ReferenceOptions(every_s=args.reference_every, method=args.reference_method, spp=args.reference_spp,
+                                         object_spp=args.reference_object_spp,
+                                         radius_m=args.reference_radius if args.reference_radius != 0 else None)
 
             with staged_run(args.out, overwrite=args.overwrite) as partial:
                 summary = run_simulate(SimulateOptions(
@@ -246,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
                     preview_envmap_height=args.preview_envmap_height, overwrite=True, progress=not args.quiet,
                     pipeline=not args.record_only, config=config, composite_every=args.composite_every,
                     video=not args.no_video, rerun=args.rerun, cache_dir=args.cache_dir, device=args.device,
-                    faults=fault_options(args),
+                    faults=fault_options(args), reference=reference,
                 ))
             print(
                 f"recorded {summary['depth_packets']} depth and {summary['colour_packets']} colour packets "

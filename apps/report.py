@@ -28,6 +28,7 @@ STAGE_ERRORS = {
     "Project sample to EM*": ["em_coverage", "em_ws_psnr_db", "em_sphere_correlation", "em_depth_median_abs_m"],
     "Calculate SH coefficients*": ["sh_coeff_rel_error", "irradiance_rel_error_mean", "irradiance_rel_error_vs_true"],
     "Shade object (PRT)": ["shading_rel_rmse"],
+    "Composite": ["composite_rel_rmse", "composite_object_rel_rmse", "composite_shadow_rel_rmse"],
 }
 
 
@@ -72,7 +73,8 @@ def _markdown(run: Path, table: dict[str, dict], accuracy: dict, info: dict) -> 
         if name in (DEPTH_TOTAL, COLOUR_TOTAL):
             continue
         ref = paper.get(name)
-        errs = ", ".join(f"{k} = {accuracy[k]:.4g}" for k in STAGE_ERRORS.get(name, []) if k in accuracy)
+        errs = ", ".join(f"{k} = {accuracy[k]:.4g}" for k in STAGE_ERRORS.get(name, [])
+                         if isinstance(accuracy.get(k), (int, float)))
         lines.append(f"| {name} | {s['count']} | {_fmt(s['median_ms'])} | {_fmt(s['p95_ms'])} | {_fmt(ref)} | {errs} |")
     if "Calculate MSE" not in table:
         lines.append("| Calculate MSE | | (in the matrix stage) | | 2.69 | |")

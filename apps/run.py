@@ -150,11 +150,15 @@ def run_pipeline(
     *,
     groundtruth_envmap: Callable[[], dict | None] = lambda: None,
     extra: dict | Callable[[], dict] | None = None,
+    reference=None,
 ) -> dict:
     """Feed ``(packet, groundtruth)`` pairs through ``pipeline`` and write the run folder.
 
     ``groundtruth_envmap`` is called once at the end; it returns the true map as a dict with
-    ``radiance``, ``distance_m``, ``valid``, ``origin`` (or None). Returns the run summary.
+    ``radiance``, ``distance_m``, ``valid``, ``origin`` (or None). ``reference``: an
+    :class:`apps.reference_frames.ReferenceRecorder` (simulated runs), which sees every colour packet
+    and composite and, at the end, renders and scores its frames into ``reference/`` and
+    ``accuracy.json``. Returns the run summary.
     """
     from apps.report import write_reports
 
@@ -184,6 +188,8 @@ def run_pipeline(
                 gc.collect(1)
             if isinstance(packet, ColourPacket):
                 tracker.on_colour(packet.timestamp_ns, gt)
+                if reference is not None:
+                    reference.on_colour(packet.timestamp_ns, gt)
                 n_colour += 1
                 pose = packet.T_world_from_colour
                 results = pipeline.feed(packet)
@@ -209,6 +215,8 @@ def run_pipeline(
                         video.write(image)
                     if (n_colour - 1) % opts.composite_every == 0:
                         _write_png(comp_dir / f"{result.timestamp_ns}.png", image)
+                    if reference is not None:
+                        reference.on_step(result, pipeline)
                     if recorder is not None:
                         recorder.colour(result, pose)
         pipeline.finish()
@@ -225,13 +233,18 @@ def run_pipeline(
     write_records(out / "stage_times.csv", pipeline.timer.records)
     _write_depth_frames(out / "depth_frames.csv", tracker.rows)
     accuracy = tracker.summary(pipeline, groundtruth_envmap())
+    reference_facts: dict = {}
+    if reference is not None:
+        metrics, reference_facts = reference.finish(pipeline, out)
+        accuracy.update(metrics)
     (out / "accuracy.json").write_text(json.dumps(accuracy, indent=2) + "\n")
     dump_yaml(pipeline.config, out / "config.yaml")
     summary = {
         "depth_packets": n_depth, "colour_packets": n_colour, "depth_frames_processed": pipeline.depth_steps,
         "depth_packets_dropped": pipeline.dropped_depth, "packets_skipped": dict(sorted(pipeline.skipped.items())),
         "pipeline_wall_s": wall,
-        "em_origin": pipeline.capture.em.origin.tolist(), **((extra() if callable(extra) else extra) or {}),
+        "em_origin": pipeline.capture.em.origin.tolist(), **reference_facts,
+        **((extra() if callable(extra) else extra) or {}),
     }
     (out / "run.json").write_text(json.dumps(summary, indent=2) + "\n")
     write_reports(out)

@@ -32,6 +32,7 @@ import numpy as np
 from tqdm import tqdm
 
 from apps.progress import bar_disable
+from apps.reference_frames import ReferenceOptions, ReferenceRecorder
 from apps.run import RunOptions, run_pipeline
 from apps.preview import colour_thumbnail, contact_sheet, depth_confidence_images, depth_to_colourmap, tonemap
 from rgbd_envmap.checks import check_method
@@ -80,6 +81,8 @@ class SimulateOptions:
     device: str = "tango"
     #: what goes wrong with the device (None: nothing; Tango device only).
     faults: FaultConfig | None = None
+    #: reference composites (path-traced ground truth of chosen frames; Tango device only).
+    reference: ReferenceOptions = ReferenceOptions()
 
 
 @contextlib.contextmanager
@@ -175,7 +178,10 @@ def run_simulate(opts: SimulateOptions) -> dict:
             elif kind == "depth" and i in show_depth:
                 d, c = depth_confidence_images(sp.packet, sim.calibration.depth)
                 depth_tiles.extend([d, c])
-            yield as_logged(sp.packet), sp.groundtruth
+            if kind == "colour":  # what a reference frame needs: the time and the true pose
+                yield as_logged(sp.packet), {**sp.groundtruth, "t_s": sp.t_s, "true_pose": sp.true_pose}
+            else:
+                yield as_logged(sp.packet), sp.groundtruth
 
     def groundtruth_envmap() -> dict:
         em = opts.config.capture
@@ -191,12 +197,15 @@ def run_simulate(opts: SimulateOptions) -> dict:
             _fault_record(out / "session", faults, fault_file):
         if opts.pipeline:
             pipe = Pipeline(opts.config, sim.calibration, origin, cache_dir=opts.cache_dir)
+            reference = (ReferenceRecorder(scene, sim.raycaster, sim.calibration.colour, opts.reference)
+                         if opts.reference.enabled and opts.config.render.enabled else None)
             with pipe:
                 run_pipeline(
                     pipe, recorded(writer), total,
                     RunOptions(out, composite_every=opts.composite_every, video=opts.video, progress=opts.progress,
                                rerun=opts.rerun),
                     groundtruth_envmap=groundtruth_envmap,
+                    reference=reference,
                     extra=lambda: {"source": "simulate", "scene": scene.name,
                                    **({"faults": dict(sorted(fault_counts.items()))} if faults else {})},
                 )

@@ -64,6 +64,7 @@ import dataclasses
 import importlib
 import inspect
 import json
+import math
 import re
 import shutil
 import subprocess
@@ -393,6 +394,7 @@ UPDATE_PARTS = (
     ("colour replaced, not averaged (colour_average=1)", {"colour_average": 1}),
     ("no free-space carving (carve=False)", {"carve": False}),
     ("one pixel per sample (splat=False)", {"splat": False}),
+    ("viewpoint rule off (view_ratio=inf)", {"view_ratio": math.inf}),
     ("the paper's update: one pixel, no carving, colour replaced", {"splat": False, "carve": False, "colour_average": 1}),
 )
 

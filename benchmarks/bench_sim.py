@@ -1,6 +1,10 @@
 """Time the simulator per packet on the default scene and trajectory.
 
-    python benchmarks/bench_sim.py [--repeats N] [--json PATH]
+    python benchmarks/bench_sim.py [--repeats N] [--json PATH] [--compare-scenes A,B]
+
+``--compare-scenes office,office_lit`` times the ToF packet and the colour frames of each scene side by
+side in one run (a lit scene's ray caster adds the lightmap lookup; its bake is loaded from the cache,
+or made once, before timing).
 """
 
 from __future__ import annotations
@@ -30,7 +34,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--compare-scenes", default=None, metavar="A,B")
     args = parser.parse_args()
+    if args.compare_scenes:
+        rows = compare_scenes(args.compare_scenes.split(","), args.repeats)
+        print_table(rows)
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=2) + "\n")
+        return
 
     scene, traj = load_scene("office"), load_trajectory("orbit")
     sim = Simulator(scene, traj, TangoDeviceConfig(), seed=0)
@@ -77,6 +88,31 @@ def main() -> None:
     print_table(rows)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + "\n")
+
+
+def compare_scenes(names: list[str], repeats: int) -> dict:
+    """ToF packet and colour frames of each scene, interleaved so the machine's load hits all alike."""
+    sims = {n: Simulator(load_scene(n), load_trajectory("orbit"), TangoDeviceConfig(), seed=0) for n in names}
+    cfg = ColourCameraConfig(width=960, height=540)
+    times = np.linspace(0.0, 20.0, repeats)
+    rows = {}
+    for label, fn in (
+        ("tof packet 224x172", lambda s, t: capture_tof(s.raycaster, s.true_pose_depth(t), t, s.device.tof,
+                                                        np.random.default_rng(0))),
+        ("colour frame 960x540", lambda s, t: capture_colour(s.raycaster, s.true_pose_colour(t), t, cfg,
+                                                             AutoExposureState(), np.random.default_rng(0))),
+    ):
+        for name, s in sims.items():
+            fn(s, 0.0)  # warm up (compilation, the lit caster's tables)
+        samples = {name: [] for name in sims}
+        for t in times:
+            for name, s in sims.items():
+                samples[name].append(time_it(lambda: fn(s, float(t)), 1, warmup=0)["median_ms"])
+        for name in sims:
+            a = np.asarray(samples[name])
+            rows[f"{name}: {label}"] = {"median_ms": float(np.median(a)), "p95_ms": float(np.percentile(a, 95)),
+                                        "n": len(a)}
+    return rows
 
 
 if __name__ == "__main__":

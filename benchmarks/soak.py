@@ -1,6 +1,6 @@
 """Soak test and fault recovery (issue 22, items 4 and 5): a benchmark, not a CI test.
 
-    python benchmarks/soak.py soak [--minutes 10] [--colour-size 960x540] [--no-render] [--out runs/soak]
+    python benchmarks/soak.py soak [--minutes 10] [--colour-size 960x540] [--no-render] [--runs both] [--out runs/soak]
     python benchmarks/soak.py recovery [--duration 40] [--trajectory alternating] [--out runs/recovery]
     python benchmarks/soak.py join [--duration 120] [--every 20] [--out runs/join]
     python benchmarks/soak.py quality LOG [--every 10] [--set KEY=VALUE]
@@ -166,7 +166,7 @@ def run_session(scene, trajectory, duration_s: float, faults: FaultConfig | None
                 scored.append({"t_s": round(sp.t_s, 2), **map_scores(pipe.capture.em, truth)})
                 next_score += score_every_s
             if sp.t_s >= next_sample:
-                rss.append((round(sp.t_s, 2), round(rss_mib(), 1)))
+                rss.append((round(sp.t_s, 2), round(rss_mib(), 1), round(tracker.retained_bytes() / 2**20, 2)))
                 next_sample += sample_s
                 print(f"[{label}] t={sp.t_s:7.1f} s rss={rss[-1][1]:.0f} MiB wall={time.perf_counter() - wall0:.0f} s",
                       flush=True)
@@ -176,7 +176,7 @@ def run_session(scene, trajectory, duration_s: float, faults: FaultConfig | None
         scores = map_scores(pipe.capture.em, truth)
         skipped = dict(sorted(pipe.skipped.items()))
         processed = pipe.depth_steps
-    tracker_mib = (sum(a.nbytes for a in tracker._raw_abs + tracker._filled_abs) + 96 * len(tracker._gains)) / 2**20
+    tracker_mib = tracker.retained_bytes() / 2**20
     t = np.array([f[0] for f in frames])
     ms = np.array([f[1] for f in frames])
     per_minute = []
@@ -185,10 +185,10 @@ def run_session(scene, trajectory, duration_s: float, faults: FaultConfig | None
         if sel.any():
             per_minute.append({"minute": m + 1, "frames": int(sel.sum()), "median_ms": round(float(np.median(ms[sel])), 2),
                                "p95_ms": round(float(np.percentile(ms[sel], 95)), 2)})
-    after_first = [r for tt, r in rss if tt >= min(60.0, 0.2 * duration_s)]
+    after_first = [r for tt, r, _ in rss if tt >= min(60.0, 0.2 * duration_s)]
     return {
         "label": label, "duration_s": duration_s, "packets": n_packets, "depth_frames_processed": processed,
-        "wall_s": round(wall, 1), "peak_rss_mib": round(peak_rss_mib(), 1), "rss_mib": rss,
+        "wall_s": round(wall, 1), "peak_rss_mib": round(peak_rss_mib(), 1), "rss_mib": rss,  # (t_s, RSS MiB, tracker MiB)
         "rss_growth_after_first_minute_mib": round(max(after_first) - after_first[0], 1) if after_first else None,
         "depth_feed_ms_per_minute": per_minute,
         "scores_over_time": scored, "accuracy_tracker_mib": round(tracker_mib, 1), "accuracy_tracker_mib_per_minute": round(tracker_mib / (duration_s / 60), 2), "faults": dict(sorted(counts.items())), "skipped": skipped, **scores,
@@ -201,12 +201,19 @@ def cmd_soak(args) -> dict:
     config = PipelineConfig(render=RenderConfig(enabled=not args.no_render))
     size = tuple(int(x) for x in args.colour_size.split("x"))
     every = max(10.0, duration / 12)
-    faulty = run_session(scene, traj, duration, soak_faults(duration), config, label="faults", colour_size=size,
-                         score_every_s=every)
-    clean = run_session(scene, traj, duration, None, config, label="fault-free", colour_size=size, score_every_s=every)
-    return {"command": " ".join(sys.argv), "faulty": faulty, "fault_free": clean,
-            "ws_psnr_gap_db": round(clean["ws_psnr_db"] - faulty["ws_psnr_db"], 3),
-            "coverage_gap_pct": round(clean["coverage_pct"] - faulty["coverage_pct"], 3)}
+    runs = {}
+    if args.runs in ("both", "faults"):
+        runs["faulty"] = run_session(scene, traj, duration, soak_faults(duration), config, label="faults",
+                                     colour_size=size, score_every_s=every)
+    if args.runs in ("both", "fault-free"):
+        runs["fault_free"] = run_session(scene, traj, duration, None, config, label="fault-free", colour_size=size,
+                                         score_every_s=every)
+    out = {"command": " ".join(sys.argv), **runs}
+    if len(runs) == 2:
+        faulty, clean = runs["faulty"], runs["fault_free"]
+        out["ws_psnr_gap_db"] = round(clean["ws_psnr_db"] - faulty["ws_psnr_db"], 3)
+        out["coverage_gap_pct"] = round(clean["coverage_pct"] - faulty["coverage_pct"], 3)
+    return out
 
 
 RECOVERY_FAULTS = {
@@ -287,6 +294,8 @@ def main() -> None:
     s.add_argument("--no-render", action="store_true")
     s.add_argument("--colour-size", default="960x540", metavar="WxH", help="the colour camera's resolution")
     s.add_argument("--out", type=Path, default=Path("runs/soak"))
+    s.add_argument("--runs", choices=("both", "faults", "fault-free"), default="both",
+                   help="which sessions to run (two processes can run one each, side by side)")
     r = sub.add_parser("recovery")
     r.add_argument("--duration", type=float, default=40.0)
     r.add_argument("--trajectory", default="alternating",

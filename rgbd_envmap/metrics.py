@@ -23,6 +23,8 @@ References:
     (Sphere-uniform correlation of ODIs, as used by Monroy et al. for their Fig. 9.)
     Monroy, Hudon, Smolic (2018). Dynamic Environment Mapping for Augmented Reality Applications on
     Mobile Devices, §6.2 and Fig. 9 (data loss and correlation after EM translation).
+    Debevec (1998). Rendering Synthetic Objects into Real Scenes. SIGGRAPH (a composite is judged
+    by the object and by the change it makes to the scene around it: :func:`composite_errors`).
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ import math
 import numpy as np
 
 from rgbd_envmap.checks import check_array, check_number
-from rgbd_envmap.errors import NonFiniteError, ShapeError
+from rgbd_envmap.errors import NonFiniteError, RangeError, ShapeError
 from rgbd_envmap.geometry import equirect_solid_angles
 
 __all__ = [
@@ -42,6 +44,7 @@ __all__ = [
     "coverage_of",
     "data_loss",
     "depth_errors",
+    "composite_errors",
 ]
 
 _NUMERIC = ("float", "int")
@@ -411,3 +414,81 @@ def depth_errors(estimate: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> d
         "bias": float(e.mean()),
         "n": n,
     }
+
+
+#: luminance weights (Rec. 709 primaries, linear), for the shadow region of :func:`composite_errors`.
+_LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+def _box_mean(a: np.ndarray, weight: np.ndarray, k: int) -> np.ndarray:
+    """Mean of ``a`` over the k×k window around each pixel, counting only pixels of weight 1."""
+    import cv2
+
+    num = cv2.boxFilter(np.where(weight, a, 0.0), -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    den = cv2.boxFilter(weight.astype(np.float64), -1, (k, k), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    return num / np.maximum(den, 1.0)
+
+
+def composite_errors(ours: np.ndarray, with_object: np.ndarray, without_object: np.ndarray,
+                     object_mask: np.ndarray, valid: np.ndarray, *, shadow_threshold: float = 0.02,
+                     window_px: int = 7) -> dict:
+    """Errors of a composited frame against a reference rendered with and without the virtual object.
+
+    All three images are linear radiance of the same view (the composite with the camera's gains
+    undone). Three regions:
+
+    - **object**: ``object_mask & valid``, the pixels that see the virtual object;
+    - **shadow**: valid pixels off the object where the object changes the scene, i.e. where the
+      reference's luminance with and without the object differ by more than ``shadow_threshold`` of
+      the luminance without it (its shadow, and the light it bounces). Both luminances are first
+      averaged over a ``window_px`` square of valid off-object pixels, so that the path tracer's
+      noise does not make a speckle of isolated "changed" pixels;
+    - **all**: the two together.
+
+    Each error is the relative RMSE over the region's pixels and channels,
+    ``sqrt(Σ (ours − with_object)² / Σ with_object²)``.
+
+    Args:
+        ours: (H, W, 3) float, the composite. with_object, without_object: (H, W, 3) float references.
+        object_mask: (H, W) bool. valid: (H, W) bool, the pixels that can be compared (values
+            elsewhere are not read and may be NaN).
+        shadow_threshold: > 0, relative. window_px: odd ≥ 1.
+
+    Returns:
+        dict with float ``object_rel_rmse``, ``shadow_rel_rmse``, ``rel_rmse`` (NaN for an empty
+        region, or one whose reference is black) and int ``object_pixels``, ``shadow_pixels``; ``shadow_mask`` (H, W) bool.
+
+    Raises:
+        ShapeError, DTypeError, NonFiniteError (a NaN or inf at a valid pixel), RangeError.
+    """
+    ours = check_array(ours, "ours", shape=("H", "W", 3), dtype=_NUMERIC)
+    h, w = ours.shape[:2]
+    if h == 0 or w == 0:
+        raise ShapeError(f"ours: expected a non-empty image, got shape {ours.shape}")
+    with_object = check_array(with_object, "with_object", shape=(h, w, 3), dtype=_NUMERIC)
+    without_object = check_array(without_object, "without_object", shape=(h, w, 3), dtype=_NUMERIC)
+    object_mask = _check_mask(object_mask, "object_mask", (h, w))
+    valid = _check_mask(valid, "valid", (h, w))
+    threshold = check_number(shadow_threshold, "shadow_threshold", low=0.0, low_open=True)
+    k = int(check_number(window_px, "window_px", low=1, high=255, integer=True))
+    if k % 2 == 0:
+        raise RangeError(f"window_px: expected an odd number, got {k}")
+    for arr, name in ((ours, "ours"), (with_object, "with_object"), (without_object, "without_object")):
+        _raise_if_nonfinite(arr, valid, name)
+    a = np.where(valid[..., None], ours, 0.0).astype(np.float64)
+    ref = np.where(valid[..., None], with_object, 0.0).astype(np.float64)
+    bg = np.where(valid[..., None], without_object, 0.0).astype(np.float64)
+    off = valid & ~object_mask
+    change = _box_mean(np.abs((ref - bg) @ _LUMA), off, k)
+    level = _box_mean(bg @ _LUMA, off, k)
+    shadow = off & (change > threshold * np.maximum(level, 1e-12))
+    obj = object_mask & valid
+
+    def rel_rmse(mask: np.ndarray) -> float:
+        if not mask.any():
+            return math.nan
+        den = float(np.sum(ref[mask] ** 2))
+        return math.sqrt(float(np.sum((a[mask] - ref[mask]) ** 2)) / den) if den > 0 else math.nan
+
+    return {"object_rel_rmse": rel_rmse(obj), "shadow_rel_rmse": rel_rmse(shadow), "rel_rmse": rel_rmse(obj | shadow),
+            "object_pixels": int(obj.sum()), "shadow_pixels": int(shadow.sum()), "shadow_mask": shadow}

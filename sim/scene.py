@@ -13,8 +13,9 @@ model, and a timeline (visible interval, scale steps such as a lamp dimming). Tw
   reflects nothing).
 
 Albedo, emission and radiance are constant RGB or a procedural texture over a quad's (s, t) ∈ [0, 1]².
-Scenes are written in YAML under ``sim/data/scenes/`` (package data, installed with the package);
-:func:`load_scene` reads one by name or path.
+A ``shape: mesh`` object reads a glTF / GLB, OBJ or PLY file (:mod:`sim.mesh_import`): its base
+colour becomes the albedo and its emissive colour the emission, one constant per part, so a file
+with several colours becomes several objects, ``NAME.0``, ``NAME.1``, ... (docs/design/scenes.md).
 
 Scenes are written in YAML under ``sim/data/scenes/`` (package data, installed with the package);
 :func:`load_scene` reads one by name or path.
@@ -30,6 +31,7 @@ import trimesh
 import yaml
 
 from rgbd_envmap.errors import InvalidInputError
+from sim.mesh_import import mesh_parts
 
 __all__ = ["Texture", "SceneObject", "Scene", "load_scene", "SCENES_DIR", "FLAG_BITS"]
 
@@ -244,7 +246,7 @@ def _build_shape(spec: dict, name: str):
         mesh = trimesh.creation.icosphere(subdivisions=2, radius=spec["radius"])
         mesh.apply_translation(spec["centre"])
     else:
-        raise InvalidInputError(f"object {name}: unknown shape {shape!r}; valid shapes are box, cylinder, quad, sphere")
+        raise InvalidInputError(f"object {name}: unknown shape {shape!r}; valid shapes are box, cylinder, mesh, quad, sphere")
     return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64), None
 
 
@@ -264,32 +266,62 @@ def _material_value(spec: dict, key: str, name: str) -> tuple[np.ndarray | None,
     return _rgb(value, f"object {name}: {key}", below_one=key == "albedo"), None
 
 
-def _object_from_spec(spec: dict) -> SceneObject:
+def _mesh_objects(spec: dict, name: str, base_dir: Path | None, common: dict) -> list[SceneObject]:
+    """The objects of a ``shape: mesh`` spec: one per part of constant material (sim.mesh_import)."""
+    rad, texture = _material_value(spec, "radiance", name)
+    albedo, albedo_texture = _material_value(spec, "albedo", name)
+    emission, emission_texture = _material_value(spec, "emission", name)
+    if any(t is not None for t in (texture, albedo_texture, emission_texture)):
+        raise InvalidInputError(f"object {name}: textures are supported on quads only (a mesh takes its file's colours)")
+    if rad is not None:  # fixed radiance: the file's colours do not matter
+        if emission is not None:
+            raise InvalidInputError(f"object {name}: emission needs a lit surface (albedo); radiance is already fixed")
+        parts = mesh_parts(spec, name, base_dir, albedo=np.zeros(3), emission=np.zeros(3))
+    else:
+        parts = mesh_parts(spec, name, base_dir, albedo=albedo, emission=emission)
+    objects = []
+    for k, part in enumerate(parts):
+        if rad is None and part.albedo is None:
+            raise InvalidInputError(f"object {name}: albedo: the file {spec['file']} has no base colour; "
+                                    "give albedo: [r, g, b] (or radiance:)")
+        objects.append(SceneObject(
+            name=name if len(parts) == 1 else f"{name}.{k}", vertices=part.vertices, faces=part.faces,
+            radiance=rad, albedo=None if rad is not None else part.albedo,
+            emission=None if rad is not None or not (part.emission > 0).any() else part.emission, **common))
+    return objects
+
+
+def _objects_from_spec(spec: dict, base_dir: Path | None = None) -> list[SceneObject]:
     name = spec.get("name")
     if not name:
         raise InvalidInputError(f"scene object without a name: {spec}")
     if "radiance" in spec and "albedo" in spec:
         raise InvalidInputError(f"object {name}: give either radiance or albedo, not both")
+    vis = spec.get("visible", {}) or {}
+    steps = tuple((float(s["t"]), float(s["scale"])) for s in spec.get("timeline", []) or [])
+    common = dict(flags=frozenset(spec.get("flags", []) or []),
+                  visible_from_s=float(vis.get("from", -np.inf)), visible_until_s=float(vis.get("until", np.inf)),
+                  scale_steps=tuple(sorted(steps)))
+    if spec.get("shape") == "mesh":
+        return _mesh_objects(spec, name, base_dir, common)
     verts, faces, frame = _build_shape(spec, name)
     rad, texture = _material_value(spec, "radiance", name)
     albedo, albedo_texture = _material_value(spec, "albedo", name)
     emission, emission_texture = _material_value(spec, "emission", name)
-    vis = spec.get("visible", {}) or {}
-    steps = tuple((float(s["t"]), float(s["scale"])) for s in spec.get("timeline", []) or [])
-    return SceneObject(
+    return [SceneObject(
         name=name, vertices=verts, faces=faces, radiance=rad, texture=texture, quad_frame=frame,
-        flags=frozenset(spec.get("flags", []) or []),
-        visible_from_s=float(vis.get("from", -np.inf)), visible_until_s=float(vis.get("until", np.inf)),
-        scale_steps=tuple(sorted(steps)),
         albedo=albedo, albedo_texture=albedo_texture, emission=emission, emission_texture=emission_texture,
-    )
+        **common,
+    )]
 
 
-def scene_from_dict(d: dict) -> Scene:
-    """Build a :class:`Scene` from its YAML mapping."""
+def scene_from_dict(d: dict, base_dir: str | Path | None = None) -> Scene:
+    """Build a :class:`Scene` from its YAML mapping; mesh files' relative paths are resolved against
+    ``base_dir`` (the YAML file's folder; the working directory when None)."""
+    base = None if base_dir is None else Path(base_dir)
     return Scene(
         name=d.get("name", "unnamed"),
-        objects=tuple(_object_from_spec(o) for o in d.get("objects", []) or []),
+        objects=tuple(o for spec in d.get("objects", []) or [] for o in _objects_from_spec(spec, base)),
         virtual_object_position=np.asarray(d.get("virtual_object_position", [0.0, 0.0, 0.0]), dtype=np.float64),
         default_trajectory=d.get("default_trajectory", "orbit"),
     )
@@ -304,4 +336,4 @@ def load_scene(name_or_path: str | Path) -> Scene:
         known = sorted(p.stem for p in SCENES_DIR.glob("*.yaml"))
         raise InvalidInputError(f"scene {name_or_path!r}: no file {path}; known scenes are {known}")
     with open(path) as f:
-        return scene_from_dict(yaml.safe_load(f) or {})
+        return scene_from_dict(yaml.safe_load(f) or {}, base_dir=path.resolve().parent)

@@ -298,16 +298,16 @@ def _list_footprints(rec, n_bands, k0, n0, k1, n1, per_band, listed):  # pragma:
 def _update_bands(
     band_lo, band_hi, per_band, listed, rec, rec_key, colours, origin, device, height, width, planes, depth, valid,
     trusted_r, removal_r, zband, tiles, row_sc, col_sc, log_idx, log_old, log_valid, log_n, carve, cam, seen,
-    averaged, avg,
+    averaged, avg, views,
 ):  # pragma: no cover - compiled
     """:func:`update_kernel`'s steps 3 and 4 for bands ``band_lo`` to ``band_hi`` − 1: the bands'
     footprints z-buffered into ``zband`` (``tiles`` flag the touched 32-column tiles), then the rules
     and writes row by row, appending to the log from ``log_n`` on. Bands touch disjoint rows, so two
     calls on disjoint band ranges, each with its own ``zband``, ``tiles`` and log, may run at once.
-    ``averaged`` (H·W,) uint8 and ``avg`` = (colour_average, same-surface tolerance relative, absolute):
-    see :func:`update_kernel`.
+    ``averaged`` (H·W,) uint8, ``avg`` = (colour_average, same-surface tolerance relative, absolute,
+    view_ratio) and ``views`` (H·W,) float32: see :func:`update_kernel`.
     Returns (pixels touched, taken, taken that had data, of those closer, freed, carving tests, averaged,
-    log length)."""
+    kept for the viewpoint, log length)."""
     band_rows = 1 << BAND_SHIFT
     n_tiles = (width + (1 << TILE_SHIFT) - 1) >> TILE_SHIFT
     hw = height * width
@@ -323,8 +323,13 @@ def _update_bands(
     all_rows = not trusted and not removal_r < dev_r
     theta_dev = math.acos(_mx(-1.0, _mn(1.0, oz / dev_r))) if dev_r > 0.0 else 0.0
     cap = math.asin(_mx(removal_r, 0.0) / dev_r) + 2.0 * math.pi / height if removal_r < dev_r else math.pi
-    n_touched, n_taken, n_ok, n_closer, n_freed, n_tested, n_avg = 0, 0, 0, 0, 0, 0, 0
-    n_average, same_rel, same_abs = int(avg[0]), avg[1], avg[2]
+    n_touched, n_taken, n_ok, n_closer, n_freed, n_tested, n_avg, n_kept = 0, 0, 0, 0, 0, 0, 0, 0
+    n_average, same_rel, same_abs, view_ratio = int(avg[0]), avg[1], avg[2], avg[3]
+    # The viewpoint rule: off (one dummy entry in ``views``) for an infinite ratio; the trusted
+    # sphere's samples are never refused.
+    by_view = view_ratio < np.inf and not trusted
+    view_on = view_ratio < np.inf
+    dev32 = np.float32(dev_r)
     avg_top = np.uint8(_mx(n_average - 2, 0))  # the count after which a new sample weighs 1 / n_average
     inv = np.empty(256, np.float32)  # a new sample's weight after k samples: 1 / (k + 2), looked up
     for k in range(256):
@@ -554,7 +559,14 @@ def _update_bands(
                 free = carve and freed[k]
                 # The same surface (a freed pixel's sample lies beyond the tolerance): the colour
                 # averages; anything else replaces it and restarts the count.
-                same = ok & (abs(r - d) <= d * same_rel + same_abs) & (n_average > 1)
+                surface = ok & (abs(r - d) <= d * same_rel + same_abs)
+                pv = p if view_on else _u(0)  # one dummy entry without the viewpoint rule
+                # The viewpoint rule: a sample of the same surface from farther than view_ratio × the
+                # nearest device distance the pixel's surface was seen from is refused (kept as is).
+                if by_view and surface and dev_r > views[pv] * view_ratio:
+                    n_kept += 1
+                    continue
+                same = surface & (n_average > 1)
                 pa = p if n_average > 1 else _u(0)  # one dummy entry when not averaging
                 a = averaged[pa]
                 weight = inv[a]
@@ -573,32 +585,35 @@ def _update_bands(
                     old, new = pf[ch, p], colours[i, ch]
                     pf[ch, p] = old + (new - old) * weight if same else new
                 averaged[pa] = _mn(a + np.uint8(1), avg_top) if same else np.uint8(0)
+                if view_on:
+                    views[pv] = _mn(views[pv], dev32) if surface else dev32
                 df[p] = r if (not ok) | free else 0.5 * (d + r)
                 vf[p] = True
             for j in range(n_runs):  # the band's z-buffer is empty again where this row was touched
                 for c in range(run_lo[j], run_hi[j]):
                     zband[_u(zb + c)] = EMPTY_Z
-    return n_touched, n_taken, n_ok, n_closer, n_freed, n_tested, n_avg, log_n
+    return n_touched, n_taken - n_kept, n_ok, n_closer, n_freed, n_tested, n_avg, n_kept, log_n
 
 
 @numba.njit(cache=True, inline="always")
-def _rule_counts(origin, device, trusted_r, n_taken, n_ok, n_closer, n_freed, n_tested, n_avg):  # pragma: no cover - compiled
-    """The update's counts (taken, empty, closer, trusted, removal, freed, carving tests, averaged)
+def _rule_counts(origin, device, trusted_r, n_taken, n_ok, n_closer, n_freed, n_tested, n_avg, n_kept):  # pragma: no cover - compiled
+    """The update's counts (taken, empty, closer, trusted, removal, freed, carving tests, averaged,
+    kept for the viewpoint)
     from four sums: a freed pixel had data and was neither closer nor trusted (carving tests only
     pixels the other rules refuse), and "trusted" holds for all pixels or none."""
     ox, oy, oz = device[0] - origin[0], device[1] - origin[1], device[2] - origin[2]
     trusted = rule_trusted(math.sqrt(ox * ox + oy * oy + oz * oz), trusted_r)
     n_trusted = n_ok - n_closer if trusted else 0
     n_removal = 0 if trusted else n_ok - n_closer - n_freed
-    return np.array([n_taken, n_taken - n_ok, n_closer, n_trusted, n_removal, n_freed, n_tested, n_avg], np.int64)
+    return np.array([n_taken, n_taken - n_ok, n_closer, n_trusted, n_removal, n_freed, n_tested, n_avg, n_kept], np.int64)
 
 
 @numba.njit(cache=True, parallel=PRANGE_ONLY)
 def update_kernel(
     points, colours, fill_only, origin, device, height, width, focal_px, splat, splat_scale, max_splat,
     planes, depth, valid, trusted_r, removal_r, zband, tiles, rec, rec_key, listed, row_sc, col_sc,
-    log_idx, log_old, log_valid, log_n, carve, cam, seen, averaged, avg, zband2, tiles2, log2_idx, log2_old,
-    log2_valid,
+    log_idx, log_old, log_valid, log_n, carve, cam, seen, averaged, avg, views, zband2, tiles2, log2_idx,
+    log2_old, log2_valid,
 ):  # pragma: no cover - compiled
     """:func:`update`: the frame's samples z-buffered (the closest wins, the first on equal float32
     distances; :func:`_z_key`), then the rules per touched pixel, in raster order. Every taken pixel
@@ -618,8 +633,13 @@ def update_kernel(
     ``averaged[p]`` (flat (H·W,) uint8, then min(k + 1, ``avg[0]`` − 2)), so up to ``avg[0]``
     samples count equally and later ones weigh 1 / ``avg[0]``; any other taken pixel takes the
     sample's colour and k = 0. ``avg[0]`` = 1: the colour is always replaced (the paper).
+    The viewpoint rule (``avg[3]`` = view_ratio finite, the device outside the trusted sphere): such a
+    same-surface pixel is kept as it is, not taken, when the device's distance from the origin
+    exceeds view_ratio × ``views[p]`` (flat (H·W,) float32, the nearest device distance the pixel's
+    surface was seen from: the minimum over same-surface takeovers, the device's distance after any
+    other); with an infinite ratio ``views`` is a one-entry dummy, never read.
     Returns (pixels touched, counts: taken, empty, closer, trusted, removal, freed, carving tests,
-    averaged; new log length).
+    averaged, kept for the viewpoint; new log length).
 
     On two threads (one where numba has one; the map, counts and change log are the same bit for
     bit): the footprints of each half of the samples are recorded at the same time and listed, then
@@ -647,19 +667,20 @@ def update_kernel(
     while split < n_bands and done + work[split] <= half:
         done += work[split]
         split += 1
-    res = np.zeros((2, 8), np.int64)
+    res = np.zeros((2, 9), np.int64)
     for t in numba.prange(2):
         # One call site (a call per branch compiled _update_bands twice, for its literal arguments).
         lo, hi, n_log = (0, split, log_n) if t == 0 else (split, n_bands, 0)
-        a, b, c, d, e, f, g, h = _update_bands(
+        a, b, c, d, e, f, g, k, h = _update_bands(
             lo, hi, per_band, listed, rec, rec_key, colours, origin, device, height, width, planes, depth, valid,
             trusted_r, removal_r, zband if t == 0 else zband2, tiles if t == 0 else tiles2, row_sc, col_sc,
             log_idx if t == 0 else log2_idx, log_old if t == 0 else log2_old, log_valid if t == 0 else log2_valid,
-            n_log, carve, cam, seen, averaged, avg)
-        res[t, 0], res[t, 1], res[t, 2], res[t, 3], res[t, 4], res[t, 5], res[t, 6], res[t, 7] = a, b, c, d, e, f, g, h
+            n_log, carve, cam, seen, averaged, avg, views)
+        res[t, 0], res[t, 1], res[t, 2], res[t, 3], res[t, 4], res[t, 5], res[t, 6], res[t, 7] = a, b, c, d, e, f, g, k
+        res[t, 8] = h
     # The lower part's log after the upper part's (while it fits: the log's length counts on past
     # its capacity, as the single-threaded kernel's does).
-    n0, n1 = res[0, 7], res[1, 7]
+    n0, n1 = res[0, 8], res[1, 8]
     cap = log_idx.shape[0]
     for j in range(_mn(n1, _mn(log2_idx.shape[0], cap - n0))):
         log_idx[n0 + j] = log2_idx[j]
@@ -667,7 +688,7 @@ def update_kernel(
         log_valid[n0 + j] = log2_valid[j]
     log_n = n0 + n1
     t = res[0] + res[1]
-    return t[0], _rule_counts(origin, device, trusted_r, t[1], t[2], t[3], t[4], t[5], t[6]), log_n
+    return t[0], _rule_counts(origin, device, trusted_r, t[1], t[2], t[3], t[4], t[5], t[6], t[7]), log_n
 
 
 

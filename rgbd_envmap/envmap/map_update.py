@@ -19,6 +19,12 @@ the one pixel a sample falls in.
 space (the device saw through it) takes the frame's sample: it removes stale surfaces that the
 paper's removal rule, which needs the device on the pixel's ray, rarely reaches.
 
+**The viewpoint rule** (ours). Each pixel keeps the nearest distance from the origin of the devices
+that saw its surface (:func:`view_distances`); a sample of that surface from a device more than
+``UpdateConfig.view_ratio`` times as far out is refused, so a session that moves away from the
+origin does not average its far, parallax-smeared views into what near views captured. Takeovers by
+another surface are never refused.
+
 References:
     Monroy, Hudon, Smolic (2018), §6.1.
 """
@@ -40,7 +46,7 @@ from rgbd_envmap.envmap.tables import trig_tables
 from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError
 from rgbd_envmap.types import Intrinsics, RigidTransform, check_transform
 
-__all__ = ["UpdateConfig", "SeenDepth", "UpdateStats", "update", "map_coordinates"]
+__all__ = ["UpdateConfig", "SeenDepth", "UpdateStats", "update", "map_coordinates", "view_distances"]
 
 
 #: the largest ``UpdateConfig.max_splat_px``: a footprint of 2·256 + 1 rows already covers a quarter
@@ -87,6 +93,15 @@ class UpdateConfig:
     #: instead of one (after n samples of the new colour the old one keeps a weight of (7/8)^n once
     #: the mean is full).
     colour_average: int = 8
+    #: the viewpoint rule (ours): a sample of the surface a pixel holds (the same-surface test of
+    #: ``colour_average``) is refused, the pixel kept as it is, when the device is farther from the
+    #: origin than ``view_ratio`` × the nearest device distance that surface was seen from (since it
+    #: last replaced another); any other takeover (empty, a different surface, freed) still happens
+    #: and resets that distance, and the trusted sphere's samples are never refused. Far viewpoints
+    #: see the same surface with more parallax, so their depth noise smears it in the map; without
+    #: the rule a session that moves away from the origin slowly trades its near views for them.
+    #: ``math.inf``: off (the paper's rules). At least 1.
+    view_ratio: float = 1.5
 
     def __post_init__(self) -> None:
         check_number(self.trusted_radius_m, "UpdateConfig.trusted_radius_m", low=0.0)
@@ -99,6 +114,8 @@ class UpdateConfig:
         check_number(self.carve_tol_abs_m, "UpdateConfig.carve_tol_abs_m", low=0.0)
         check_positive_int(self.colour_average, "UpdateConfig.colour_average")
         check_positive_int(self.carve_window, "UpdateConfig.carve_window")
+        if not (isinstance(self.view_ratio, (float, np.floating)) and self.view_ratio == math.inf):  # inf: off
+            check_number(self.view_ratio, "UpdateConfig.view_ratio", low=1.0)
         if self.carve_window % 2 == 0 or self.carve_window > 15:
             raise RangeError(f"UpdateConfig.carve_window: expected an odd size from 1 to 15, got {self.carve_window}")
         if self.colour_average > 255:
@@ -142,6 +159,9 @@ class UpdateStats:
     carve_tested: int = 0
     #: taken pixels whose colour was averaged with the sample's (same surface; ``colour_average``).
     averaged: int = 0
+    #: pixels refused by the viewpoint rule (``view_ratio``): a same-surface sample from too far
+    #: out; they are not in ``taken``.
+    kept_view: int = 0
 
 
 #: atan(x)/x ≈ P(x²) on [0, 1]: a degree-8 Chebyshev fit, max error of atan 1.2e-8 rad (an EM pixel
@@ -249,15 +269,32 @@ def update(
     return UpdateStats(len(pts), int(n_touched), *(int(c) for c in counts))
 
 
-def _averaging(em: EnvironmentMap, config: UpdateConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The kernels' (H·W,) uint8 per-pixel average counts and (3,) float64 (colour_average,
-    tolerance relative, absolute); a map that never averages gets a one-entry dummy."""
+def _averaging(em: EnvironmentMap, config: UpdateConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The kernels' (H·W,) uint8 per-pixel average counts, (4,) float64 (colour_average, tolerance
+    relative, absolute, view_ratio) and (H·W,) float32 viewpoint distances (:func:`view_distances`);
+    a map that never averages, or an update without the viewpoint rule, gets one-entry dummies."""
     n = int(config.colour_average)
     counts = em.colour_counts().reshape(-1) if n > 1 else _NO_AVERAGED
-    return counts, np.array([n, float(config.carve_tol_rel), float(config.carve_tol_abs_m)], np.float64)
+    ratio = float(config.view_ratio)
+    views = view_distances(em).reshape(-1) if ratio < math.inf else _NO_VIEWS
+    return counts, np.array([n, float(config.carve_tol_rel), float(config.carve_tol_abs_m), ratio], np.float64), views
+
+
+def view_distances(em: EnvironmentMap) -> np.ndarray:
+    """(H, W) float32: per pixel, the nearest distance from the origin of the devices that saw its
+    surface (``UpdateConfig.view_ratio``), inf where unknown. Kept with the map's colour counts: it
+    starts at inf (any viewpoint acceptable) whenever they restart (``copy``, ``translate``,
+    ``from_arrays``, ``mark_modified``)."""
+    counts = em.colour_counts()
+    held = em.scratch.get("view_distances")
+    if held is None or held[0] is not counts:
+        held = (counts, np.full((em.height, em.width), np.inf, np.float32))
+        em.scratch["view_distances"] = held
+    return held[1]
 
 
 _NO_AVERAGED = np.zeros(1, np.uint8)
+_NO_VIEWS = np.full(1, np.inf, np.float32)
 _NO_CAM = np.zeros(23)
 _NO_SEEN = np.zeros((1, 1), np.float32)
 

@@ -11,13 +11,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from rgbd_envmap.checks import check_flag, check_method, check_number, check_positive_int
+from rgbd_envmap.assets import OBJECT_NAMES
+from rgbd_envmap.checks import check_flag, check_instance, check_method, check_number, check_positive_int
 from rgbd_envmap.envmap.translation import TRANSLATE_METHODS
 from rgbd_envmap.envmap_io import CONVENTIONS
 from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.ingest.kinect import KinectMergeConfig
 from rgbd_envmap.ingest.tango import TangoIngestConfig
 from rgbd_envmap.pipeline.capture import CaptureConfig
+from rgbd_envmap.prt import MAX_PRT_DIRS
+from rgbd_envmap.render.raster import BACKENDS
+from rgbd_envmap.sh import check_bands
+
+#: the shadow plane's grid, vertices per side (the PRT transfer is computed per vertex).
+MAX_PLANE_RESOLUTION = 4096
 
 __all__ = ["ShadingConfig", "ObjectConfig", "RenderConfig", "PoseCheckConfig", "PipelineConfig"]
 
@@ -40,6 +47,10 @@ class ShadingConfig:
     lighting_convention: str | None = None
 
     def __post_init__(self) -> None:
+        check_bands(self.bands, "shading.bands")  # at most sh.MAX_BANDS; the message says why
+        check_flag(self.auto_bands, "shading.auto_bands")
+        check_number(self.band_tolerance, "shading.band_tolerance", low=0.0)
+        check_bands(self.max_bands, "shading.max_bands")
         if self.lighting_convention is not None:
             check_method(self.lighting_convention, CONVENTIONS, "shading.lighting_convention")
         if self.lighting_file is not None and not (isinstance(self.lighting_file, str) and self.lighting_file):
@@ -56,8 +67,18 @@ class ObjectConfig:
     #: under the virtual-object position).
     base_below_origin_m: float = 0.05
     prt_dirs: int = 1024
-    plane_size_m: float = 0.5
+    #: side of the square shadow plane; None: 4 × the object's larger horizontal extent.
+    plane_size_m: float | None = 0.5
+    #: the shadow plane's grid vertices per side (2 to :data:`MAX_PLANE_RESOLUTION`).
     plane_resolution: int = 48
+
+    def __post_init__(self) -> None:
+        check_method(self.name, OBJECT_NAMES, "object.name")
+        check_number(self.height_m, "object.height_m", low=0.0, low_open=True)
+        check_number(self.base_below_origin_m, "object.base_below_origin_m")
+        check_number(self.prt_dirs, "object.prt_dirs", low=1, high=MAX_PRT_DIRS, integer=True)
+        check_number(self.plane_size_m, "object.plane_size_m", low=0.0, low_open=True, high=1e6, optional=True)
+        check_number(self.plane_resolution, "object.plane_resolution", low=2, high=MAX_PLANE_RESOLUTION, integer=True)
 
 
 @dataclass(frozen=True)
@@ -68,6 +89,11 @@ class RenderConfig:
     #: "numba" (own rasteriser) or "pyrender" (the reference, OpenGL through EGL): docs/design/render.md.
     backend: str = "numba"
     shadow_grey: float = 0.15
+
+    def __post_init__(self) -> None:
+        check_flag(self.enabled, "render.enabled")
+        check_method(self.backend, BACKENDS, "render.backend")
+        check_number(self.shadow_grey, "render.shadow_grey", low=0.0, high=1.0)
 
 
 @dataclass(frozen=True)
@@ -127,13 +153,13 @@ class PipelineConfig:
     pose_check: PoseCheckConfig = field(default_factory=PoseCheckConfig)
 
     def __post_init__(self) -> None:
+        sections = (("ingest", TangoIngestConfig), ("kinect", KinectMergeConfig), ("capture", CaptureConfig),
+                    ("shading", ShadingConfig), ("object", ObjectConfig), ("render", RenderConfig),
+                    ("pose_check", PoseCheckConfig))
+        for name, cls in sections:  # a dict or a wrong section fails here, not deep in a stage
+            check_instance(getattr(self, name), cls, name)
         check_method(self.translation_method, TRANSLATE_METHODS, "translation_method")
         check_positive_int(self.threads, "PipelineConfig.threads")
-        if not isinstance(self.pose_check, PoseCheckConfig):
-            raise InvalidInputError(f"pose_check: expected a PoseCheckConfig, got {type(self.pose_check).__name__}")
-        if not self.max_colour_lag_ms >= 0:
-            raise InvalidInputError(f"max_colour_lag_ms: expected ≥ 0, got {self.max_colour_lag_ms}")
-        if self.kinect_em_every < 1 or self.kinect_em_stride < 1:
-            raise InvalidInputError(f"kinect_em_every / kinect_em_stride: expected ≥ 1, got {self.kinect_em_every} / {self.kinect_em_stride}")
-        if self.shading.bands < 1 or self.shading.max_bands < 1:
-            raise InvalidInputError(f"shading.bands / max_bands: expected ≥ 1, got {self.shading.bands} / {self.shading.max_bands}")
+        check_number(self.max_colour_lag_ms, "max_colour_lag_ms", low=0.0)
+        check_positive_int(self.kinect_em_every, "kinect_em_every")
+        check_positive_int(self.kinect_em_stride, "kinect_em_stride")

@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from rgbd_envmap import sh
-from rgbd_envmap.checks import check_array
+from rgbd_envmap.checks import check_array, check_instance
 from rgbd_envmap.colour import decode_nv21
 from rgbd_envmap.envmap.map import EnvironmentMap
 from rgbd_envmap.envmap.translation import translate
@@ -237,6 +237,12 @@ class Pipeline:
         )
 
     @property
+    def virtual_object(self):
+        """The :class:`~rgbd_envmap.assets.VirtualObject` being composited (object frame), or None with
+        rendering off; its world position is :attr:`object_base`."""
+        return self._object
+
+    @property
     def object_base(self) -> np.ndarray:
         """(3,) world position of the object's base (moves with :meth:`move_object`)."""
         return self.capture.em.origin + self.object_offset - np.array([0.0, 0.0, self.config.object.base_below_origin_m])
@@ -335,6 +341,7 @@ class Pipeline:
     def feed(self, packet: DepthPacket | ColourPacket) -> list[DepthStep | ColourStep]:
         """Process one packet; returns what it produced (a depth step and / or a composited frame).
         Packets it cannot use are skipped and counted in :attr:`skipped`."""
+        check_instance(packet, (DepthPacket, ColourPacket), "packet")
         if self._merger is not None:
             raise InvalidInputError("feed: a 'kinect' pipeline takes registered RGB-D frames; use feed_rgbd")
         lag_ns = self.config.max_colour_lag_ms * 1e6
@@ -352,8 +359,6 @@ class Pipeline:
                     self.timer.begin("depth")
                     out.append(self._depth_step(packet, last[0], last[1]))
             return out
-        if not isinstance(packet, ColourPacket):
-            raise InvalidInputError(f"packet: expected a DepthPacket or ColourPacket, got {type(packet).__name__}")
         if not self._in_order("colour", packet.timestamp_ns):
             return out
         self._check_pose(packet.timestamp_ns, packet.T_world_from_colour.matrix)

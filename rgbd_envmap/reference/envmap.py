@@ -43,7 +43,7 @@ def span32(x: float, half: float, limit: float) -> tuple[int, int]:
 
 def update_reference(em: EnvironmentMap, pts: np.ndarray, cols: np.ndarray, device: np.ndarray, focal: float,
                      config: UpdateConfig, fill_only: np.ndarray | None = None,
-                     averaged: np.ndarray | None = None) -> tuple[int, dict[str, int]]:
+                     averaged: np.ndarray | None = None, views: np.ndarray | None = None) -> tuple[int, dict[str, int]]:
     """The map update one sample and one pixel at a time, writing ``em`` in place.
 
     1. Each finite sample (point and colour) at a positive finite distance covers its footprint's
@@ -54,13 +54,21 @@ def update_reference(em: EnvironmentMap, pts: np.ndarray, cols: np.ndarray, devi
     3. A taken pixel's depth becomes the mean of old and new (the new one if it was empty); its
        colour is replaced, or averaged when the sample is of the same surface (its distance within
        ``carve_tol_rel`` · d + ``carve_tol_abs_m`` of the stored d) and ``colour_average`` > 1.
+    4. The viewpoint rule (``config.view_ratio`` finite, the device outside the trusted sphere): a
+       pixel a rule took whose sample is of the same surface (the test of 3) is kept as it is, and
+       counted ``"kept_view"`` instead of under its rule, when the device's distance from the origin
+       exceeds view_ratio × the pixel's view distance. A taken pixel's view distance becomes the
+       device's distance (float32), or the smaller of the two for a same-surface sample.
 
-    ``averaged``: (H, W) int array of each pixel's colour-average count, kept by the caller across
-    calls (zeros when None). Returns the number of covered pixels and the pixels taken per rule
-    (plus ``"averaged"``).
+    ``averaged``: (H, W) int array of each pixel's colour-average count, ``views``: (H, W) float32
+    array of the view distances (inf: unknown), both kept by the caller across calls (zeros and inf
+    when None). Returns the number of covered pixels and the pixels taken per rule (plus
+    ``"averaged"`` and ``"kept_view"``).
     """
     if averaged is None:
         averaged = np.zeros((em.height, em.width), int)
+    if views is None:
+        views = np.full((em.height, em.width), np.inf, np.float32)
     h, w = em.height, em.width
     row_px, col_px = h / math.pi, w / (2 * math.pi)
     pts = np.asarray(pts, np.float64)
@@ -91,7 +99,8 @@ def update_reference(em: EnvironmentMap, pts: np.ndarray, cols: np.ndarray, devi
     rows, cols_t = trig_tables(h, w)
     o = device - em.origin
     dev_r = math.sqrt(o @ o)
-    counts = {"empty": 0, "closer": 0, "trusted": 0, "removal": 0, "averaged": 0}
+    counts = {"empty": 0, "closer": 0, "trusted": 0, "removal": 0, "averaged": 0, "kept_view": 0}
+    by_view = config.view_ratio < math.inf and not dev_r < config.trusted_radius_m
     for (rr, cc), (r, i) in zbuf.items():
         rule = None
         if not em.valid[rr, cc]:
@@ -108,11 +117,15 @@ def update_reference(em: EnvironmentMap, pts: np.ndarray, cols: np.ndarray, devi
             if rule_removal(along, to_ray, r, em.depth_m[rr, cc], config.removal_radius_m):
                 rule = "removal"
         if rule:
-            counts[rule] += 1
             stored = float(em.depth_m[rr, cc])
+            surface = em.valid[rr, cc] and abs(float(r) - stored) <= stored * config.carve_tol_rel + config.carve_tol_abs_m
+            if by_view and surface and dev_r > float(views[rr, cc]) * config.view_ratio:
+                counts["kept_view"] += 1
+                continue
+            counts[rule] += 1
+            views[rr, cc] = min(views[rr, cc], np.float32(dev_r)) if surface else np.float32(dev_r)
             n_avg = config.colour_average
-            same = (em.valid[rr, cc] and abs(float(r) - stored) <= stored * config.carve_tol_rel + config.carve_tol_abs_m
-                    and n_avg > 1)
+            same = surface and n_avg > 1
             k = averaged[rr, cc]
             if same:  # a running mean over at most n_avg samples, in float32 as the kernel
                 wgt = np.float32(1.0) / (np.float32(k) + np.float32(2.0))

@@ -815,3 +815,96 @@ def test_summary_is_json_serialisable():
     back = json.loads(json.dumps(out, allow_nan=False))
     assert back == out
     assert all(isinstance(v, (int, float)) and math.isfinite(v) for v in out.values())
+
+
+# ------------------------------------------------------------------------------ bounded memory
+
+
+def random_depth_frame(rng, h: int = 12, w: int = 16):
+    """A frame with random raw and filled pixels and random errors, and its truth."""
+    truth = rng.uniform(0.5, 4.0, (h, w))
+    tv = rng.random((h, w)) > 0.1
+    raw_known = rng.random((h, w)) > 0.5
+    filled_known = raw_known | (rng.random((h, w)) > 0.4)
+    raw_depth = truth + rng.normal(0.0, 0.01, (h, w))
+    filled_depth = np.where(raw_known, raw_depth, truth + rng.normal(0.0, 0.05, (h, w)))
+    raw_depth[~raw_known] = np.nan
+    filled_depth[~filled_known] = np.nan
+    raw = raw_known & tv
+    filled = filled_known & ~raw_known & tv
+    return (raw_depth, raw_known, filled_depth, filled_known, {"true_depth_m": truth, "true_valid": tv},
+            np.abs(raw_depth[raw] - truth[raw]), np.abs(filled_depth[filled] - truth[filled]))
+
+
+def feed_random_session(tracker: AccuracyTracker, n: int, seed: int = 0):
+    """n depth frames with truth, each after a colour frame with gains, the first a reference; returns
+    the per-pixel errors and the CCM errors, for a brute-force summary."""
+    rng = np.random.default_rng(seed)
+    raws, fills, ccms = [], [], []
+    tracker.on_colour(0, {"gains": G_REF})
+    tracker.on_depth(step(0, reference=True), {})
+    true = np.diag(G_REF / G_A)
+    for k in range(1, n + 1):
+        rd, rk, fd, fk, gt, e_raw, e_fill = random_depth_frame(rng)
+        tracker.on_colour(k, {"gains": G_A})
+        scale = float(rng.uniform(0.0, 0.3))
+        tracker.on_depth(step(k, fit=ccm(true * (1.0 + scale)), raw_depth=rd, raw_known=rk, filled_depth=fd,
+                              filled_known=fk), gt)
+        raws.append(e_raw)
+        fills.append(e_fill)
+        ccms.append(scale)
+    return np.concatenate(raws), np.concatenate(fills), np.array(ccms)
+
+
+def brute_force_summary(raws, fills, ccms) -> dict:
+    return {"ingest_depth_mae_m": raws.mean(), "ingest_depth_rmse_m": math.sqrt(np.mean(raws**2)),
+            "hole_filling_depth_mae_m": fills.mean(), "hole_filling_depth_rmse_m": math.sqrt(np.mean(fills**2)),
+            "hole_filling_depth_median_abs_m": float(np.median(fills)),
+            "ccm_matrix_rel_error_median": float(np.median(ccms)),
+            "ccm_matrix_rel_error_p95": percentile_linear(ccms, 95)}
+
+
+@pytest.mark.parametrize("exact_values,median_rel", [(2**20, 1e-12), (64, 5.1e-5)])
+def test_summary_equals_a_brute_force_computation(exact_values, median_rel):
+    """Running sums give the means exactly (to rounding); the medians are exact while the values fit
+    in ``exact_values``, and within half a bin (5e-5 relative) once binned."""
+    tr = AccuracyTracker(exact_values=exact_values)
+    raws, fills, ccms = feed_random_session(tr, 200, seed=5)
+    assert fills.size > 5000 and ccms.size == 200
+    out = summary_of(make_em(np.ones((4, 8), bool)), None, tr)
+    want = brute_force_summary(raws, fills, ccms)
+    for key, value in want.items():
+        rel = median_rel if ("median" in key or "p95" in key) else 1e-12
+        assert out[key] == pytest.approx(value, rel=rel), key
+    assert out["depth_frames"] == 201 and out["depth_frames_projected"] == 201
+    # the rows, read back from disk, are those on_depth returned, NaN and types included
+    rows = list(tr.rows)
+    assert len(rows) == len(tr.rows) == 201
+    assert [r["timestamp_ns"] for r in rows] == list(range(201))
+    assert math.isnan(rows[0]["ccm_mse"]) and rows[1]["ccm_mse"] == 0.01 and rows[1]["reference"] is False
+    assert rows[5]["ccm_rel_error"] == pytest.approx(ccms[4], rel=1e-12)
+    assert json.dumps(list(tr.rows)) == json.dumps(rows)  # read again: the same (NaN as NaN)
+
+
+def retained_after(n: int) -> tuple[int, int]:
+    """(the tracker's retained_bytes, the Python heap it holds by tracemalloc) after n frames."""
+    import gc
+    import tracemalloc
+
+    gc.collect()
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    tr = AccuracyTracker(exact_values=256)  # both sessions pass it, the CCM errors too
+    feed_random_session(tr, n, seed=1)  # the errors it returns are dropped before measuring
+    gc.collect()
+    held = tracemalloc.get_traced_memory()[0] - base
+    tracemalloc.stop()
+    return tr.retained_bytes(), held
+
+
+def test_the_trackers_memory_does_not_grow_with_the_number_of_frames():
+    small, big = retained_after(300), retained_after(900)
+    assert small[0] == big[0]  # past exact_values and GAINS_KEPT colour frames: a fixed size
+    # The heap it holds by tracemalloc: a per-frame list of rows or of float errors would add at least
+    # 600 × 8 bytes; what is allowed is noise (the allocator's pools).
+    assert big[1] - small[1] < 4096, (small, big)

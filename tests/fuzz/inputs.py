@@ -250,6 +250,10 @@ CALLS = {
     "data_loss": (metrics.data_loss, lambda: dict(before_valid=np.ones((MH, MW), bool), after_valid=np.ones((MH, MW), bool))),
     "depth_errors": (metrics.depth_errors, lambda: dict(estimate=np.full((MH, MW), 2.0), truth=np.full((MH, MW), 2.1),
                                                         mask=np.ones((MH, MW), bool))),
+    "composite_errors": (metrics.composite_errors, lambda: dict(
+        ours=np.full((12, 16, 3), 0.5), with_object=np.full((12, 16, 3), 0.55), without_object=np.full((12, 16, 3), 0.6),
+        object_mask=np.pad(np.ones((4, 4), bool), ((2, 6), (2, 10))), valid=np.ones((12, 16), bool),
+        shadow_threshold=0.02, window_px=3)),
     # geometry
     "distort_normalized": (geometry.distort_normalized, lambda: dict(xy=np.full((5, 2), 0.1), distortion=INTR.distortion)),
     "undistort_normalized": (geometry.undistort_normalized, lambda: dict(xy_distorted=np.full((5, 2), 0.1),

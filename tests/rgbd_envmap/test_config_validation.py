@@ -8,9 +8,11 @@ import pytest
 from rgbd_envmap.checks import check_flag, check_number
 from rgbd_envmap.config import apply_overrides
 from rgbd_envmap.envmap import UpdateConfig
-from rgbd_envmap.errors import DTypeError, RangeError, RgbdEnvmapError, UnknownMethodError
+from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError, RgbdEnvmapError, UnknownMethodError
 from rgbd_envmap.ingest.tango import TangoIngestConfig
-from rgbd_envmap.pipeline import CaptureConfig, PipelineConfig
+from rgbd_envmap.pipeline import CaptureConfig, ObjectConfig, PipelineConfig, PoseCheckConfig, RenderConfig, ShadingConfig
+from rgbd_envmap.prt import MAX_PRT_DIRS
+from rgbd_envmap.sh import MAX_BANDS
 
 BAD_UPDATE = [
     ("trusted_radius_m", -0.1, RangeError), ("trusted_radius_m", math.nan, RangeError),
@@ -45,6 +47,68 @@ def test_capture_config_rejects_bad_fields(field, value, error):
         CaptureConfig(**{field: value})
 
 
+BAD_SHADING = [
+    ("bands", 0, RangeError), ("bands", MAX_BANDS + 1, RangeError), ("bands", 1000, RangeError),
+    ("bands", "x", DTypeError), ("bands", 2.0, DTypeError), ("bands", True, DTypeError),
+    ("auto_bands", "true", DTypeError), ("auto_bands", 1, DTypeError),
+    ("band_tolerance", math.nan, RangeError), ("band_tolerance", -0.01, RangeError),
+    ("band_tolerance", math.inf, RangeError), ("band_tolerance", "0.01", DTypeError),
+    ("max_bands", 0, RangeError), ("max_bands", 10**6, RangeError), ("max_bands", None, DTypeError),
+    ("lighting_convention", "maya", UnknownMethodError), ("lighting_file", "", InvalidInputError),
+]
+
+BAD_OBJECT = [
+    ("name", "teapot", UnknownMethodError), ("name", None, UnknownMethodError),
+    ("height_m", -1.0, RangeError), ("height_m", 0.0, RangeError), ("height_m", math.nan, RangeError),
+    ("height_m", "0.1", DTypeError),
+    ("base_below_origin_m", math.inf, RangeError), ("base_below_origin_m", None, DTypeError),
+    ("prt_dirs", 0, RangeError), ("prt_dirs", MAX_PRT_DIRS + 1, RangeError), ("prt_dirs", 10**12, RangeError),
+    ("prt_dirs", 1024.0, DTypeError), ("prt_dirs", False, DTypeError),
+    ("plane_size_m", 0.0, RangeError), ("plane_size_m", -0.5, RangeError), ("plane_size_m", math.nan, RangeError),
+    ("plane_size_m", 1e7, RangeError),
+    ("plane_resolution", 1, RangeError), ("plane_resolution", 10**5, RangeError), ("plane_resolution", 4.5, DTypeError),
+]
+
+BAD_RENDER = [
+    ("enabled", "no", DTypeError), ("enabled", 0, DTypeError), ("backend", "vulkan", UnknownMethodError),
+    ("shadow_grey", -0.1, RangeError), ("shadow_grey", 1.5, RangeError), ("shadow_grey", math.nan, RangeError),
+    ("shadow_grey", None, DTypeError),
+]
+
+BAD_PIPELINE = [
+    ("shading", {"bands": 3}, DTypeError), ("object", None, DTypeError), ("render", ShadingConfig(), DTypeError),
+    ("capture", "default", DTypeError), ("ingest", CaptureConfig(), DTypeError), ("kinect", 1, DTypeError),
+    ("pose_check", RenderConfig(), DTypeError),
+    ("max_colour_lag_ms", -1.0, RangeError), ("max_colour_lag_ms", math.nan, RangeError),
+    ("max_colour_lag_ms", "20", DTypeError),
+    ("kinect_em_every", 0, RangeError), ("kinect_em_every", 6.0, DTypeError),
+    ("kinect_em_stride", -2, RangeError), ("kinect_em_stride", None, DTypeError),
+]
+
+
+@pytest.mark.parametrize("cls,prefix,field,value,error",
+                         [(ShadingConfig, "shading.", *c) for c in BAD_SHADING]
+                         + [(ObjectConfig, "object.", *c) for c in BAD_OBJECT]
+                         + [(RenderConfig, "render.", *c) for c in BAD_RENDER]
+                         + [(PipelineConfig, "", *c) for c in BAD_PIPELINE])
+def test_pipeline_sections_reject_bad_fields(cls, prefix, field, value, error):
+    with pytest.raises(error, match=f"^{prefix}{field}: (expected|unknown method)") as info:
+        cls(**{field: value})
+    assert "\n" not in str(info.value)  # one line, naming the field
+
+
+def test_section_bounds_themselves_are_accepted():
+    assert ShadingConfig(bands=MAX_BANDS, max_bands=MAX_BANDS, band_tolerance=0.0).bands == MAX_BANDS
+    assert ShadingConfig(bands=1, max_bands=1).max_bands == 1
+    oc = ObjectConfig(name="blob", prt_dirs=MAX_PRT_DIRS, plane_resolution=2, plane_size_m=None,
+                      base_below_origin_m=-0.2)
+    assert (oc.prt_dirs, oc.plane_resolution, oc.plane_size_m) == (MAX_PRT_DIRS, 2, None)
+    assert RenderConfig(enabled=False, backend="pyrender", shadow_grey=1.0).shadow_grey == 1.0
+    assert RenderConfig(shadow_grey=0).shadow_grey == 0
+    cfg = PipelineConfig(max_colour_lag_ms=0.0, kinect_em_every=1, kinect_em_stride=1, pose_check=PoseCheckConfig())
+    assert (cfg.kinect_em_every, cfg.kinect_em_stride) == (1, 1)
+
+
 def test_a_map_too_large_is_refused_saying_how_much_memory_it_would_take():
     with pytest.raises(RangeError, match=r"100000×200000 would take about [0-9.]+ GiB"):
         CaptureConfig(height=100_000, width=200_000)
@@ -65,10 +129,22 @@ def test_unknown_method_names_fail_when_the_config_is_made():
     ("capture.update.splat_scale=.nan", "splat_scale"),
     ("capture.height=0", "height"),
     ("ingest.fill_method=bogus", "fill_method"),
+    ("shading.bands=1000", "shading.bands"),
+    ("shading.bands=x", "shading.bands"),
+    ("shading.band_tolerance=.nan", "shading.band_tolerance"),
+    ("shading.auto_bands=maybe", "shading.auto_bands"),
+    ("object.height_m=-1", "object.height_m"),
+    ("object.prt_dirs=1000000000000", "object.prt_dirs"),
+    ("object.name=teapot", "object.name"),
+    ("render.backend=vulkan", "render.backend"),
+    ("render.shadow_grey=2", "render.shadow_grey"),
+    ("kinect_em_every=0", "kinect_em_every"),
+    ("max_colour_lag_ms=-1", "max_colour_lag_ms"),
 ])
 def test_command_line_overrides_are_checked_as_the_config_is_built(override, field):
-    with pytest.raises(RgbdEnvmapError, match=field):
+    with pytest.raises(RgbdEnvmapError, match=field) as info:
         apply_overrides(PipelineConfig(), [override])
+    assert "\n" not in str(info.value)
 
 
 def test_defaults_and_valid_values_pass_unchanged():

@@ -415,6 +415,7 @@ def test_update_kernel_equals_the_per_sample_reference(splat):
     em_k, em_r = EnvironmentMap(h, w, (0.1, -0.2, 0.3)), EnvironmentMap(h, w, (0.1, -0.2, 0.3))
     cfg = UpdateConfig(splat=splat, max_splat_px=6)
     averaged = np.zeros((h, w), int)
+    views = np.full((h, w), np.inf, np.float32)
     fired = np.zeros(6, int)
     for frame, device in enumerate(([1.0, 0.5, 0.2], [0.4, -0.1, 0.5], [0.12, -0.18, 0.31])):
         n = 400
@@ -427,10 +428,10 @@ def test_update_kernel_equals_the_per_sample_reference(splat):
         cols[rng.random(n) < 0.02, 1] = np.inf
         fill_only = rng.random(n) < 0.3
         stats = update(em_k, pts, cols, np.array(device), FOCAL, cfg, fill_only=fill_only)
-        touched, counts = update_reference(em_r, pts, cols, np.array(device), FOCAL, cfg, fill_only, averaged)
+        touched, counts = update_reference(em_r, pts, cols, np.array(device), FOCAL, cfg, fill_only, averaged, views)
         assert stats.touched == touched
         assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal,
-                stats.averaged) == tuple(counts.values())
+                stats.averaged, stats.kept_view) == tuple(counts.values())
         fired += (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged,
                   stats.touched - stats.taken)
         np.testing.assert_array_equal(em_k.valid, em_r.valid)
@@ -470,7 +471,7 @@ def test_update_equal_float32_distances_keep_what_a_sequential_z_test_keeps(spla
             stats = update(em_k, pts, cols, np.array([0.0, 0.0, 1.0]), FOCAL, cfg, fill_only)
             touched, counts = update_reference(em_r, pts, cols, np.array([0.0, 0.0, 1.0]), FOCAL, cfg, fill_only)
             assert stats.touched == touched
-            assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged) == tuple(counts.values())
+            assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged, stats.kept_view) == tuple(counts.values())
             np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
             np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
 
@@ -489,6 +490,7 @@ def test_update_kernel_equals_the_reference_on_odd_widths_across_the_seam_and_po
     em_k, em_r = EnvironmentMap(h, w, origin), EnvironmentMap(h, w, origin)
     cfg = UpdateConfig(max_splat_px=6)
     averaged = np.zeros((h, w), int)
+    views = np.full((h, w), np.inf, np.float32)
     focal = w / 4.0
     frames = [(d, 300) for d in ([0.9, -0.3, 0.2], [0.3, 0.1, -0.4], [0.06, 0.03, -0.08])]
     frames += [([0.9, -0.3, 0.2], 1)] * 150
@@ -501,9 +503,9 @@ def test_update_kernel_equals_the_reference_on_odd_widths_across_the_seam_and_po
         cols = rng.random((n, 3)).astype(np.float32)
         fill_only = rng.random(n) < 0.2
         stats = update(em_k, pts, cols, np.array(device), focal, cfg, fill_only=fill_only)
-        touched, counts = update_reference(em_r, pts, cols, np.array(device), focal, cfg, fill_only, averaged)
+        touched, counts = update_reference(em_r, pts, cols, np.array(device), focal, cfg, fill_only, averaged, views)
         assert stats.touched == touched
-        assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged) == tuple(counts.values())
+        assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged, stats.kept_view) == tuple(counts.values())
         np.testing.assert_array_equal(em_k.valid, em_r.valid)
         np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
         np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
@@ -620,6 +622,102 @@ def test_removal_rule_near_the_edge_of_its_cone():
         np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
         np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
     assert fired > 0
+
+
+@pytest.mark.parametrize("ratio", [1.0, 1.5, 3.0, np.inf])
+def test_viewpoint_rule_kernel_equals_the_reference(ratio):
+    # One room-like surface (1–3 m per direction) sampled with 1 % distance noise from devices
+    # near and far, in an order that makes far frames follow near ones and the reverse, plus a
+    # nearer object that appears (a different surface: always taken) and the trusted sphere (never
+    # refused). Maps, counts and the view distances must equal the per-pixel reference's.
+    rng = np.random.default_rng(11)
+    h, w = 30, 60
+    origin = (0.0, 0.0, 0.0)
+    n = 600
+    dirs = rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    wall = rng.uniform(1.0, 3.0, n)
+    em_k, em_r = EnvironmentMap(h, w, origin), EnvironmentMap(h, w, origin)
+    cfg = UpdateConfig(max_splat_px=4, view_ratio=ratio, carve=False)
+    averaged = np.zeros((h, w), int)
+    views = np.full((h, w), np.inf, np.float32)
+    kept = 0
+    devices = [0.3, 1.2, 0.5, 2.0, 0.05, 1.0, 0.6, 2.5]
+    for k, dev_r in enumerate(devices):
+        dist = wall * (1.0 + 0.01 * rng.normal(size=n))
+        if k == 5:  # an object appears in front of part of the room
+            dist = np.where(dirs[:, 2] > 0.5, 0.6 * wall, dist)
+        pts = dirs * dist[:, None]
+        cols = rng.random((n, 3)).astype(np.float32)
+        device = dev_r * np.array([0.6, 0.0, 0.8])
+        stats = update(em_k, pts, cols, device, 30.0, cfg)
+        touched, counts = update_reference(em_r, pts, cols, device, 30.0, cfg, None, averaged, views)
+        assert stats.touched == touched
+        assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged,
+                stats.kept_view) == tuple(counts.values())
+        assert stats.taken == sum(counts[r] for r in ("empty", "closer", "trusted", "removal"))
+        if dev_r < cfg.trusted_radius_m:
+            assert stats.kept_view == 0  # the trusted sphere is never refused
+        kept += stats.kept_view
+        np.testing.assert_array_equal(em_k.valid, em_r.valid)
+        np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
+        np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
+        if ratio < np.inf:
+            np.testing.assert_array_equal(update_module.view_distances(em_k), views)
+    if ratio == np.inf:
+        assert kept == 0
+    else:
+        assert kept > 0
+
+
+@pytest.mark.parametrize("value,error", [(0.99, RangeError), (0.0, RangeError), (-np.inf, RangeError),
+                                         (np.nan, RangeError), ("1.5", DTypeError), (True, DTypeError), (None, DTypeError)])
+def test_view_ratio_is_validated(value, error):
+    with pytest.raises(error, match="UpdateConfig.view_ratio"):
+        UpdateConfig(view_ratio=value)
+    assert UpdateConfig(view_ratio=1.0).view_ratio == 1.0 and UpdateConfig(view_ratio=np.inf).view_ratio == np.inf
+    assert UpdateConfig().view_ratio == 1.5
+
+
+def test_viewpoint_rule_keeps_near_views_and_lets_other_surfaces_in():
+    # A closed-form case: every map pixel holds a surface at 2 m seen from 0.4 m out. A same-surface
+    # (nearer) sample from 1.0 m out (> 1.5 × 0.4) is refused, one from 0.5 m is averaged in and lowers
+    # nothing; a nearer object (1 m: a different surface) is taken from 1.0 m, and then a 1.0 m
+    # view of the same surface, from no farther than 1.5 × 1.0, is taken.
+    h, w = 20, 40
+    em = EnvironmentMap(h, w)
+    dirs = equirect_directions(h, w).reshape(-1, 3)
+    grey = np.full((len(dirs), 3), 0.5, np.float32)
+    cfg = UpdateConfig(splat=False, carve=False)
+    dev = lambda r: np.array([0.0, r, 0.0])  # noqa: E731
+    s0 = update(em, dirs * 2.0, grey, dev(0.4), FOCAL, cfg)
+    assert s0.taken_empty == h * w
+    np.testing.assert_array_equal(update_module.view_distances(em), np.float32(0.4))
+    before = em.radiance_planes.copy(), em.depth_m.copy()
+    s1 = update(em, dirs * 1.99, np.ones_like(grey), dev(1.0), FOCAL, cfg)
+    assert s1.taken == 0 and s1.kept_view == h * w and s1.touched == h * w
+    np.testing.assert_array_equal(em.radiance_planes, before[0])
+    np.testing.assert_array_equal(em.depth_m, before[1])
+    # Off, the same frame averages into every pixel (the closer rule does not apply: farther).
+    em_off = EnvironmentMap(h, w)
+    update(em_off, dirs * 2.0, grey, dev(0.4), FOCAL, cfg)
+    s_off = update(em_off, dirs * 1.99, np.ones_like(grey), dev(1.0), FOCAL, UpdateConfig(splat=False, carve=False, view_ratio=np.inf))
+    assert s_off.kept_view == 0 and s_off.averaged == h * w
+    s2 = update(em, dirs * 1.99, np.ones_like(grey), dev(0.5), FOCAL, cfg)
+    assert s2.taken_closer == h * w and s2.averaged == h * w and s2.kept_view == 0
+    np.testing.assert_allclose(em.radiance_planes, 0.75)
+    np.testing.assert_array_equal(update_module.view_distances(em), np.float32(0.4))  # the minimum stays
+    s3 = update(em, dirs * 1.0, grey, dev(1.0), FOCAL, cfg)
+    assert s3.taken_closer == h * w and s3.averaged == 0 and s3.kept_view == 0
+    np.testing.assert_array_equal(update_module.view_distances(em), np.float32(1.0))
+    # The depth is now the mean 0.5 · (1.995 + 1.0) (the paper's rule); a sample just nearer, of that
+    # surface, from 1.0 m (within 1.5 × 1.0): averaged in.
+    np.testing.assert_allclose(em.depth_m, 0.5 * (0.5 * (2.0 + 1.99) + 1.0), rtol=1e-6)
+    s4 = update(em, dirs * 1.49, np.ones_like(grey), dev(1.0), FOCAL, cfg)
+    assert s4.kept_view == 0 and s4.averaged == h * w
+    # The view distances restart with the colour counts (a modified map: any viewpoint again).
+    em.mark_modified()
+    assert np.isinf(update_module.view_distances(em)).all()
 
 
 def _random_rgbd(seed, width, height, focal):

@@ -724,3 +724,64 @@ def test_inputs_are_not_modified():
 def test_docstring_examples():
     result = doctest.testmod(metrics, extraglobs={"np": np}, optionflags=doctest.ELLIPSIS)
     assert result.attempted >= 2 and result.failed == 0
+
+
+# --- composite_errors -------------------------------------------------------------------------------
+
+
+def _composite_case():
+    h, w = 40, 60
+    yy, xx = np.mgrid[:h, :w]
+    obj = (abs(yy - 10) < 4) & (abs(xx - 15) < 4)
+    disc = (yy - 25) ** 2 + (xx - 40) ** 2 < 64
+    without = np.full((h, w, 3), 0.8)
+    with_obj = without.copy()
+    with_obj[disc] *= 0.5  # the object's shadow
+    with_obj[obj] = [0.3, 0.2, 0.1]
+    return with_obj, without, obj, disc
+
+
+def test_composite_errors_closed_form_regions_and_values():
+    with_obj, without, obj, disc = _composite_case()
+    ours = with_obj.copy()
+    ours[obj] *= 1.1  # 10 % too bright on the object
+    ours[disc] *= 0.8  # 20 % too dark in the shadow
+    e = metrics.composite_errors(ours, with_obj, without, obj, np.ones(obj.shape, bool), window_px=1)
+    assert np.array_equal(e["shadow_mask"], disc)
+    assert e["object_pixels"] == obj.sum() and e["shadow_pixels"] == disc.sum()
+    assert e["object_rel_rmse"] == pytest.approx(0.1, rel=1e-12)
+    assert e["shadow_rel_rmse"] == pytest.approx(0.2, rel=1e-12)
+    both = obj | disc
+    expect = np.sqrt(np.sum((ours[both] - with_obj[both]) ** 2) / np.sum(with_obj[both] ** 2))
+    assert e["rel_rmse"] == pytest.approx(expect, rel=1e-12)
+
+
+def test_composite_errors_window_ignores_isolated_noise_and_keeps_a_real_shadow():
+    with_obj, without, obj, disc = _composite_case()
+    rng = np.random.default_rng(3)
+    speckle = rng.random(obj.shape) < 0.003
+    yy, xx = np.mgrid[:obj.shape[0], :obj.shape[1]]
+    speckle &= ((yy - 25) ** 2 + (xx - 40) ** 2 > 14 ** 2) & ~obj  # farther than the window from the shadow
+    noisy = with_obj.copy()
+    noisy[speckle] *= 1.3  # isolated path-tracing outliers
+    e1 = metrics.composite_errors(noisy, noisy, without, obj, np.ones(obj.shape, bool), window_px=1)
+    e7 = metrics.composite_errors(noisy, noisy, without, obj, np.ones(obj.shape, bool), window_px=7)
+    assert (e1["shadow_mask"] & speckle).sum() == speckle.sum()
+    assert not (e7["shadow_mask"] & speckle).any()
+    assert (e7["shadow_mask"] & disc).sum() >= 0.9 * disc.sum()
+
+
+def test_composite_errors_reads_nothing_outside_valid_and_is_nan_for_empty_regions():
+    with_obj, without, obj, disc = _composite_case()
+    ours = with_obj.copy()
+    valid = ~obj
+    ours[obj] = np.nan
+    e = metrics.composite_errors(ours, with_obj, without, obj, valid, window_px=1)
+    assert math.isnan(e["object_rel_rmse"]) and e["object_pixels"] == 0
+    assert e["shadow_rel_rmse"] == 0.0
+    same = metrics.composite_errors(without, without, without, np.zeros(obj.shape, bool), np.ones(obj.shape, bool))
+    assert same["shadow_pixels"] == 0 and math.isnan(same["rel_rmse"])
+    with pytest.raises(NonFiniteError, match="ours"):
+        metrics.composite_errors(ours, with_obj, without, obj, np.ones(obj.shape, bool))
+    with pytest.raises(RangeError, match="window_px"):
+        metrics.composite_errors(ours, with_obj, without, obj, valid, window_px=4)

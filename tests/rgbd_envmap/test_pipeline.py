@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rgbd_envmap.pipeline.capture import CaptureConfig
-from rgbd_envmap.errors import InvalidInputError, RangeError
+from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError
 from rgbd_envmap.pipeline import RENDER_STAGES, STAGES, ColourStep, DepthStep, ObjectConfig, Pipeline, PipelineConfig, RenderConfig
 from sim.colour_camera import ColourCameraConfig
 from sim.device import TangoDeviceConfig
@@ -106,7 +106,7 @@ def test_bad_inputs(sim):
     with pytest.raises(RangeError, match="PipelineConfig.threads"):
         PipelineConfig(threads=0)
     pipe = Pipeline(CFG, sim.calibration, ORIGIN)
-    with pytest.raises(InvalidInputError, match="packet"):
+    with pytest.raises(DTypeError, match="packet"):
         pipe.feed("not a packet")
 
 

@@ -171,6 +171,43 @@ def test_lamp_dimming_is_exact_by_linearity(tmp_path):
     np.testing.assert_allclose(before - after, 0.6 * lamp_part, rtol=1e-5, atol=1e-7)
 
 
+def test_state_after_a_box_goes_matches_the_scene_without_it(tmp_path):
+    """The bake shares rays between visibility states (the state after a box goes reuses the state
+    before it, casting again only what met the box): the later state must match a bake of the scene
+    that never had the box (its shadow and the dark floor under it gone), and the earlier one must
+    still show them."""
+    objects = [
+        _quad("floor", [-1, -1, 0], [2, 0, 0], [0, 2, 0], albedo=[0.5, 0.5, 0.5]),
+        _quad("wall", [-1, 1, 0], [2, 0, 0], [0, 0, 1.2], albedo=[0.7, 0.7, 0.7]),
+        _quad("lamp", [-0.2, -0.2, 1.0], [0.4, 0, 0], [0, 0.4, 0], albedo=[0, 0, 0], emission=[3, 3, 3]),
+    ]
+    box = {"name": "box", "shape": "box", "centre": [0.3, 0.0, 0.15], "size": [0.3, 0.3, 0.3],
+           "albedo": [0.6, 0.6, 0.6], "visible": {"until": 1.0}}
+    config = BakeConfig(spp=8, direct_samples=64, final_gather=64, texel_m=0.1)
+    with_box = bake_scene(scene_from_dict({"objects": objects + [box]}), config, tmp_path)
+    without = bake_scene(scene_from_dict({"objects": objects}), config, tmp_path)
+    assert len(with_box.states) == 2 and 3 in with_box.states[0] and 3 not in with_box.states[1]
+    lat = with_box.lattice
+    floor = np.flatnonzero(lat.point_object == 0)
+    np.testing.assert_array_equal(lat.points[floor], without.lattice.points[floor])
+    up = 0 if (lat.point_normal[floor, 2] > 0).all() else 1
+    p = lat.points[floor]
+    under = (np.abs(p[:, 0] - 0.3) < 0.13) & (np.abs(p[:, 1]) < 0.13)
+    near = (np.abs(p[:, 0] - 0.3) < 0.6) & (np.abs(p[:, 1]) < 0.6) & ~under
+    assert under.sum() >= 4 and near.sum() > 50
+    assert not with_box.valid[0, up, floor[under]].any() and with_box.valid[1, up, floor[under]].all()
+    after = with_box.values[1, 0, up, floor].sum(axis=1)
+    before = with_box.values[0, 0, up, floor].sum(axis=1)
+    alone = without.values[0, 0, up, floor].sum(axis=1)
+    assert abs(after.mean() / alone.mean() - 1) < 0.01
+    assert abs(after[near].mean() / alone[near].mean() - 1) < 0.01
+    assert abs(after[under].mean() / alone[under].mean() - 1) < 0.03
+    lit = alone > 0  # (an open scene: floor points whose probes all escape are dead, zero)
+    assert lit.sum() > 0.5 * len(floor)
+    assert np.median(np.abs(after[lit] / alone[lit] - 1)) < 0.03
+    assert before[near].mean() < 0.95 * alone[near].mean()  # the box's shadow, while it is there
+
+
 def _hit_triangles(rc, origin, dirs):
     import open3d as o3d
 
