@@ -8,11 +8,11 @@ from the same random sequence makes their difference (the object's shadow and th
 nearly free of noise where the object changes nothing.
 
 :func:`render_reference_pair` renders that pair for a virtual object, the ground truth of a composite:
-the paths of both renders are traced only in a region of interest (the pixels that see the object or
-a surface within ``radius_m`` of it, where its shadow and its bounce light fall); elsewhere the object
+both are rendered only in a region of interest (the pixels that see the object or a surface within
+``radius_m`` of it, where its shadow and its bounce light fall); elsewhere the object
 changes the scene by less than the comparison resolves, and both frames hold the bake's radiance
 (the simulated camera's own truth, within 2 % of path tracing: tests/sim/test_lit_world.py).
-``radius_m=None`` path-traces every pixel.
+``radius_m=None`` renders every pixel. The function's docstring describes the two methods.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ class ReferencePair:
     Attributes:
         with_object, without_object: (H, W, 3) float32 linear radiance through each pixel centre.
         object_mask: (H, W) bool, the pixel's ray meets the object first.
-        traced: (H, W) bool, the pixel was path-traced (the region of interest); elsewhere both
+        traced: (H, W) bool, the pixel was rendered (the region of interest); elsewhere both
             frames hold the bake's radiance.
         hit: (H, W) bool, the ray meets a surface (the object or the scene).
         noise_with, noise_without: (H, W, 3) float32 standard error of each pixel's mean (from the
