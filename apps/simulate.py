@@ -3,7 +3,8 @@
 Writes the run folder of :mod:`apps.run` (map, composites, timing and accuracy reports, config) plus
 ``session/`` (the log, replayable with ``rgbd-envmap replay``; ground truth under
 ``session/groundtruth/``, including ``envmap.npz``, the true map at the session's end),
-``preview/`` (contact sheet, depth and confidence images, the true map) and ``simulation.json``.
+``preview/`` (contact sheet, depth and confidence images, the true map), ``simulation.json`` and
+``reference/`` (reference composites of chosen frames and their scores: :mod:`apps.reference_frames`).
 
 With ``faults`` (:class:`sim.faults.FaultConfig`, Tango device only) the device misbehaves; what it
 did is recorded in ``session/groundtruth/faults.jsonl`` (the configuration, then one line per packet
@@ -81,7 +82,7 @@ class SimulateOptions:
     device: str = "tango"
     #: what goes wrong with the device (None: nothing; Tango device only).
     faults: FaultConfig | None = None
-    #: reference composites (path-traced ground truth of chosen frames; Tango device only).
+    #: reference composites (the rendered ground truth of chosen frames, ``reference/``; Tango device only).
     reference: ReferenceOptions = ReferenceOptions()
 
 
