@@ -219,7 +219,9 @@ def main() -> None:
         "warp_depth (pure, allocates scratch)": lambda: K.warp_depth(prev_depth, weight, prev_known, intr, T),
         "merge_depth (pure)": lambda: K.merge_depth(*warped, f2.depth_m, f2.known),
         "normals_from_depth (pure)": lambda: K.normals_from_depth(f2.depth_m, f2.known, intr),
-        "ref: cv2.warpFrame (point warp, cracks)": lambda: cv2.warpFrame(prev_depth, None, None, T.matrix, intr.K),
+        "ref: cv2.warpFrame (point warp, cracks)": lambda: cv2.warpFrame(  # no None image / mask: OpenCV 5.1 crashes
+            prev_depth, np.zeros((*prev_depth.shape, 3), np.uint8), np.full(prev_depth.shape, 255, np.uint8), T.matrix,
+            intr.K),
         "ref: kornia warp_frame_depth (backward)": lambda: kornia.geometry.depth.warp_frame_depth(
             src_t, dst_t, T_prev_from_cur, Kt),
         "ref: cv2.RgbdNormals FALS (+ depthTo3d)": lambda: fals.apply(cv2.depthTo3d(f2.depth_m, intr.K)),
