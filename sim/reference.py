@@ -115,9 +115,22 @@ def _hits(mi_scene, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return np.asarray(mi_scene.ray_test(ray)).astype(bool)
 
 
-def _mesh_distance(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """Distance (N,) along each ray from ``origin`` to the mesh (inf where it misses), by open3d."""
-    return _mesh_distance_many(vertices, faces, np.broadcast_to(np.asarray(origin, np.float64), dirs.shape), dirs)
+def _object_caster(vertices: np.ndarray, faces: np.ndarray):
+    """An open3d ray caster of the object alone (built once per reference pair)."""
+    import open3d as o3d
+
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)), o3d.core.Tensor(np.asarray(faces, np.uint32)))
+    return rc
+
+
+def _distance(rc, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Distance (N,) along rays (N origins or one, N directions) to the object (inf where they miss)."""
+    import open3d as o3d
+
+    rays = np.concatenate([np.broadcast_to(np.asarray(origins, np.float32), dirs.shape), np.asarray(dirs, np.float32)],
+                          axis=1)
+    return rc.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)))["t_hit"].numpy()
 
 
 def _cone_directions(axis: np.ndarray, cos_max: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
@@ -182,7 +195,8 @@ def render_reference_pair(scene: Scene, T_world_from_cam: RigidTransform, intrin
     raycaster = raycaster if raycaster is not None else SceneRaycaster(scene)
     hits = raycaster.cast(origin, dirs, t_s, normals=False)
     verts = np.asarray(virtual_object.vertices, np.float64)
-    t_obj = _mesh_distance(verts, virtual_object.faces, origin, dirs)
+    object_rc = _object_caster(verts, virtual_object.faces)
+    t_obj = _distance(object_rc, origin, dirs)
     object_mask = np.isfinite(t_obj) & (~hits.hit | (t_obj < hits.distance_m))
     centre = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
     point = origin + dirs * np.where(hits.hit, hits.distance_m, 0.0)[:, None]
@@ -220,7 +234,7 @@ def render_reference_pair(scene: Scene, T_world_from_cam: RigidTransform, intrin
             mean, err = traced_mean(mi_scene, np.broadcast_to(origin, (len(idx), 3)), dirs[idx], object_spp,
                                     seed * 100_003)
             with_obj[idx], noise[0][idx] = mean, err
-        _gather_change(scene, raycaster, mi_scene, t_s, virtual_object, origin, dirs,
+        _gather_change(raycaster, object_rc, mi_scene, t_s, origin, dirs,
                        np.flatnonzero(traced & ~object_mask), centre, verts, spp, seed, with_obj, noise[0])
     hit = hits.hit | object_mask
     shape3 = (h, w, 3)
@@ -233,7 +247,7 @@ def render_reference_pair(scene: Scene, T_world_from_cam: RigidTransform, intrin
 _GATHER_BATCH = 1 << 14
 
 
-def _gather_change(scene, raycaster, mi_scene, t_s, obj, origin, dirs, idx, centre, verts, m, seed, out, noise):
+def _gather_change(raycaster, object_rc, mi_scene, t_s, origin, dirs, idx, centre, verts, m, seed, out, noise):
     """Add to ``out[idx]`` the radiance change the object makes at each pixel's scene point (see
     :func:`render_reference_pair`, ``gather``); its standard error to ``noise[idx]``.
 
@@ -268,18 +282,18 @@ def _gather_change(scene, raycaster, mi_scene, t_s, obj, origin, dirs, idx, cent
         count = np.minimum(count, m - m % 2)
         for mk in np.unique(count[count > 0]):
             g = np.flatnonzero(count == mk)
-            _gather_group(raycaster, mi_scene, t_s, obj, verts, x[g], n[g], axis[g], cos_max[g], solid[g], albedo[g],
+            _gather_group(raycaster, object_rc, mi_scene, t_s, x[g], n[g], axis[g], cos_max[g], solid[g], albedo[g],
                           int(mk), rng, int(seed) * 7_919 + b * 64 + int(mk), out, noise, pix[g])
 
 
-def _gather_group(raycaster, mi_scene, t_s, obj, verts, x, n, axis, cos_max, solid, albedo, m, rng, seed, out, noise,
+def _gather_group(raycaster, object_rc, mi_scene, t_s, x, n, axis, cos_max, solid, albedo, m, rng, seed, out, noise,
                   pix):
     """:func:`_gather_change` for points that all take ``m`` directions."""
     d = _cone_directions(axis, cos_max, m, rng)  # (P, m, 3)
     cos_n = np.einsum("pmk,pk->pm", d, n)
     o_rep = np.repeat(x + 1e-4 * n, m, axis=0)
     d_flat = d.reshape(-1, 3)
-    t_o = _mesh_distance_many(verts, obj.faces, o_rep, d_flat)
+    t_o = _distance(object_rc, o_rep, d_flat)
     towards = np.isfinite(t_o) & (cos_n.ravel() > 0)
     delta = np.zeros((len(d_flat), 3))
     k = np.flatnonzero(towards)
@@ -295,13 +309,3 @@ def _gather_group(raycaster, mi_scene, t_s, obj, verts, x, n, axis, cos_max, sol
     factor = (solid / np.pi)[:, None] * albedo
     out[pix] += (factor * halves.mean(axis=0)).astype(np.float32)
     noise[pix] = (factor * np.abs(halves[0] - halves[1]) / 2.0).astype(np.float32)
-
-
-def _mesh_distance_many(vertices: np.ndarray, faces: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """Distance (N,) along rays (N origins, N directions) to the mesh (inf where they miss), by open3d."""
-    import open3d as o3d
-
-    rc = o3d.t.geometry.RaycastingScene()
-    rc.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)), o3d.core.Tensor(np.asarray(faces, np.uint32)))
-    rays = np.concatenate([np.asarray(origins, np.float32), np.asarray(dirs, np.float32)], axis=1)
-    return rc.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)))["t_hit"].numpy()

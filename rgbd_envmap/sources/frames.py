@@ -383,29 +383,27 @@ def _nonempty(src: RgbdSequenceSource) -> RgbdSequenceSource:
     return src
 
 
+def _open_rgbd_folder(read, default_scale: float, layout: str, root: Path, options: SourceOptions) -> RgbdSequenceSource:
+    """A registered RGB-D folder read by ``read`` (ICL-NUIM, Redwood), with the options' camera, scale and poses."""
+    given = _camera(options)
+    seq = read(root, intrinsics=None if given is None else given[0],
+               depth_scale=default_scale if options.depth_scale is None else options.depth_scale, trajectory=options.poses)
+    if given is not None:
+        seq.intrinsics_source = given[1]
+    return _nonempty(RgbdSequenceSource(seq, strict=options.strict, layout=layout))
+
+
 def _open_icl(root: Path, options: SourceOptions) -> RgbdSequenceSource:
     from rgbd_envmap.icl import read_icl_nuim_sequence
     from rgbd_envmap.tum import TUM_DEPTH_SCALE
 
-    given = _camera(options)
-    seq = read_icl_nuim_sequence(root, intrinsics=None if given is None else given[0],
-                                 depth_scale=TUM_DEPTH_SCALE if options.depth_scale is None else options.depth_scale,
-                                 trajectory=options.poses)
-    if given is not None:
-        seq.intrinsics_source = given[1]
-    return _nonempty(RgbdSequenceSource(seq, strict=options.strict, layout="ICL-NUIM"))
+    return _open_rgbd_folder(read_icl_nuim_sequence, TUM_DEPTH_SCALE, "ICL-NUIM", root, options)
 
 
 def _open_redwood(root: Path, options: SourceOptions) -> RgbdSequenceSource:
     from rgbd_envmap.sources.redwood import REDWOOD_DEPTH_SCALE, read_redwood_sequence
 
-    given = _camera(options)
-    seq = read_redwood_sequence(root, intrinsics=None if given is None else given[0],
-                                depth_scale=REDWOOD_DEPTH_SCALE if options.depth_scale is None else options.depth_scale,
-                                trajectory=options.poses)
-    if given is not None:
-        seq.intrinsics_source = given[1]
-    return _nonempty(RgbdSequenceSource(seq, strict=options.strict, layout="Redwood"))
+    return _open_rgbd_folder(read_redwood_sequence, REDWOOD_DEPTH_SCALE, "Redwood", root, options)
 
 
 def _open_realsense(root: Path, options: SourceOptions) -> RealSenseSource:
