@@ -1,6 +1,6 @@
 """Time the bake (sim/bake.py) of a lit scene, phase by phase: median and p95 over runs.
 
-    python benchmarks/bench_bake.py [--runs N] [--scene office_lit] [--set spp=8 ...]
+    python benchmarks/bench_bake.py [--runs N] [--scene office] [--set spp=8 ...]
                                     [--baseline OLD_BAKE.py] [--json PATH]
 
 Every run bakes from scratch (no cache). The phases are those ``bake_scene(..., timings=...)``
@@ -86,7 +86,7 @@ def _table(name: str, runs: list[dict]) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=2, help="bakes per version (median and p95 over them)")
-    ap.add_argument("--scene", default="office_lit")
+    ap.add_argument("--scene", default="office")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a BakeConfig field")
     ap.add_argument("--baseline", help="another sim/bake.py, timed at its defaults alternately with this one")
     ap.add_argument("--json", help="write the tables here")

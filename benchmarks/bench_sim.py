@@ -2,7 +2,7 @@
 
     python benchmarks/bench_sim.py [--repeats N] [--json PATH] [--compare-scenes A,B]
 
-``--compare-scenes office,office_lit`` times the ToF packet and the colour frames of each scene side by
+``--compare-scenes office_unlit,office`` times the ToF packet and the colour frames of each scene side by
 side in one run (a lit scene's ray caster adds the lightmap lookup; its bake is loaded from the cache,
 or made once, before timing).
 """

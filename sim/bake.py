@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import fcntl
 import hashlib
 import io
 import time
@@ -768,8 +769,6 @@ def bake_scene(scene: Scene, config: BakeConfig = BakeConfig(), cache_dir: Path 
     "first pass s0 g1" and its "indirect (Mitsuba) s0 g1" part, "final gather s0 s1", ...;
     benchmarks/bench_bake.py prints them).
     """
-    from sim.mitsuba_scene import build_scene
-
     start = time.perf_counter()
     with _timed(timings, "lattice"):
         lattice = build_lattice(scene, config.texel_m)
@@ -778,15 +777,53 @@ def bake_scene(scene: Scene, config: BakeConfig = BakeConfig(), cache_dir: Path 
     key = _scene_digest(scene, config)
     path = Path(cache_dir if cache_dir is not None else default_cache_dir()) / "lightmaps" / f"{key}.npz"
     shape = (len(states), len(groups), 2, lattice.size, 3)
-    if use_cache and path.is_file():
+    if not use_cache:
+        return _bake(scene, config, lattice, groups, states, key, start, progress, timings, None)
+    cached = _load_bake(path, lattice, states, groups, config, key, shape)
+    if cached is not None:
+        return cached
+    # Another process (a second test worker, a warm-up, a second user of a shared cache) may be baking
+    # the same scene: wait for it and load its result rather than bake twice.
+    with _cache_lock(path):
+        cached = _load_bake(path, lattice, states, groups, config, key, shape)
+        if cached is not None:
+            return cached
+        return _bake(scene, config, lattice, groups, states, key, start, progress, timings, path)
+
+
+@contextlib.contextmanager
+def _cache_lock(path: Path):
+    """An exclusive ``flock`` on ``<path>.lock`` (released by the kernel if the process dies)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.with_name(path.name + ".lock"), "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
         try:
-            with np.load(path) as z:
-                values, valid = z["values"], z["valid"]
-                seconds = float(z["bake_seconds"])
-            if values.shape == shape and valid.shape == (len(states), 2, lattice.size):
-                return SceneLighting(lattice, tuple(states), tuple(groups), values, valid, config, key, seconds, True)
-        except (OSError, ValueError, KeyError):
-            pass  # unreadable entry: bake again and replace it
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _load_bake(path: Path, lattice, states, groups, config: BakeConfig, key: str, shape) -> SceneLighting | None:
+    """The cached bake at ``path`` if it is there, readable and of the expected shape, else None."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path) as z:
+            values, valid = z["values"], z["valid"]
+            seconds = float(z["bake_seconds"])
+    except (OSError, ValueError, KeyError):
+        return None  # unreadable entry: bake again and replace it
+    if values.shape != shape or valid.shape != (len(states), 2, lattice.size):
+        return None
+    return SceneLighting(lattice, tuple(states), tuple(groups), values, valid, config, key, seconds, True)
+
+
+def _bake(scene: Scene, config: BakeConfig, lattice, groups, states, key: str, start: float, progress, timings,
+          path: Path | None) -> SceneLighting:
+    """Compute the bake (and write it to ``path`` unless None)."""
+    from sim.mitsuba_scene import build_scene
+
+    shape = (len(states), len(groups), 2, lattice.size, 3)
     values = np.zeros(shape, np.float32)
     valid = np.zeros((len(states), 2, lattice.size), bool)
     done, total = 0, len(states) * len(groups)
@@ -835,7 +872,7 @@ def bake_scene(scene: Scene, config: BakeConfig = BakeConfig(), cache_dir: Path 
                 for g in range(len(groups)):
                     values[s, g, side, point] = final[s][g]
     seconds = time.perf_counter() - start
-    if use_cache:
+    if path is not None:
         buf = io.BytesIO()
         np.savez(buf, values=values, valid=valid, bake_seconds=np.float64(seconds))
         atomic_write_bytes(path, buf.getvalue())

@@ -93,9 +93,13 @@ def test_a_signal_during_simulate_exits_with_its_code_and_keeps_the_earlier_run(
                              "--overwrite", *SMALL], cwd=tmp_path, env=env, stderr=subprocess.PIPE, text=True)
     partial = out.parent / f".run.partial-{proc.pid}"
     deadline = time.monotonic() + 120
-    while not (partial / "session" / "depth.txt").exists() and time.monotonic() < deadline and proc.poll() is None:
+    index = partial / "session" / "depth.txt"
+
+    def packets_written() -> bool:  # the index's header comes first, the packets once the device runs
+        return index.exists() and any(not ln.startswith("#") for ln in index.read_text().splitlines())
+
+    while not packets_written() and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.2)
-    time.sleep(1.0)  # some packets written
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == code, err

@@ -19,7 +19,7 @@ ORIGIN = (0.0, 0.0, 0.8)
 @pytest.fixture(scope="module")
 def sequence(tmp_path_factory):
     root = tmp_path_factory.mktemp("tum") / "seq"
-    sim = KinectSimulator(load_scene("office"), load_trajectory("orbit_inward"), KinectConfig().with_resolution(160, 120), seed=5)
+    sim = KinectSimulator(load_scene("office_unlit"), load_trajectory("orbit_inward"), KinectConfig().with_resolution(160, 120), seed=5)
     n = write_tum_sequence(root, sim.run(1.0), sim.calibration.depth)
     assert n == 30
     return root, sim

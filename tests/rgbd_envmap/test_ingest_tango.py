@@ -127,7 +127,7 @@ def test_points_behind_the_colour_camera_get_no_colour():
 @pytest.fixture(scope="module")
 def sim_frame():
     colour = ColourCameraConfig(width=320, height=240, shot_noise=0.0, read_noise=0.0)
-    sim = Simulator(load_scene("office"), load_trajectory("orbit"), TangoDeviceConfig(colour=colour), seed=2)
+    sim = Simulator(load_scene("office_unlit"), load_trajectory("orbit"), TangoDeviceConfig(colour=colour), seed=2)
     stream = sim.run(0.04)
     depth_sp, colour_sp = next(stream), next(stream)
     assert depth_sp.packet.timestamp_ns == colour_sp.packet.timestamp_ns
@@ -352,7 +352,7 @@ def inward_packets():
     """The third depth packet of an inward orbit (the device 1 m out, looking at the origin across the
     panels and the table) and its simultaneous colour frame: holes at many depth edges."""
     colour = ColourCameraConfig(width=320, height=240, shot_noise=0.0, read_noise=0.0)
-    sim = Simulator(load_scene("office"), load_trajectory("orbit_inward"), TangoDeviceConfig(colour=colour), seed=2)
+    sim = Simulator(load_scene("office_unlit"), load_trajectory("orbit_inward"), TangoDeviceConfig(colour=colour), seed=2)
     depth_sp = colour_sp = None
     n_depth = 0
     for sp in sim.run(0.45):

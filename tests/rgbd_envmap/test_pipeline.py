@@ -20,7 +20,7 @@ CFG = PipelineConfig(capture=CaptureConfig(height=250, width=500), render=Render
 
 @pytest.fixture(scope="module")
 def sim():
-    return Simulator(load_scene("office"), load_trajectory("orbit"), TangoDeviceConfig(colour=ColourCameraConfig(width=320, height=180)), seed=2)
+    return Simulator(load_scene("office_unlit"), load_trajectory("orbit"), TangoDeviceConfig(colour=ColourCameraConfig(width=320, height=180)), seed=2)
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +111,7 @@ def test_bad_inputs(sim):
 
 
 def test_composites_draw_the_lit_object_with_its_shadow_over_the_frame():
-    sim = Simulator(load_scene("office"), load_trajectory("orbit_inward"), TangoDeviceConfig(colour=ColourCameraConfig(width=320, height=180)), seed=4)
+    sim = Simulator(load_scene("office_unlit"), load_trajectory("orbit_inward"), TangoDeviceConfig(colour=ColourCameraConfig(width=320, height=180)), seed=4)
     cfg = replace(CFG, render=RenderConfig(enabled=True, backend="numba"),
                   object=ObjectConfig(name="blob", prt_dirs=128, plane_resolution=16))
     pipe = Pipeline(cfg, sim.calibration, ORIGIN)

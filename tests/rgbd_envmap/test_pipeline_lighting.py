@@ -32,7 +32,7 @@ CFG = PipelineConfig(capture=CaptureConfig(height=100, width=200), object=OBJECT
 
 @pytest.fixture(scope="module")
 def sim():
-    return Simulator(load_scene("office"), load_trajectory("orbit"), TangoDeviceConfig(colour=ColourCameraConfig(width=320, height=180)), seed=3)
+    return Simulator(load_scene("office_unlit"), load_trajectory("orbit"), TangoDeviceConfig(colour=ColourCameraConfig(width=320, height=180)), seed=3)
 
 
 def sky(H=64, W=128):

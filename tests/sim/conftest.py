@@ -10,7 +10,7 @@ from tests.sim.helpers import box_room
 
 @pytest.fixture(scope="session")
 def office():
-    return load_scene("office")
+    return load_scene("office_unlit")
 
 
 @pytest.fixture(scope="session")

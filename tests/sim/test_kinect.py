@@ -301,7 +301,7 @@ def test_nothing_in_view():
 def small_sim():
     cfg = KinectConfig().with_resolution(160, 120)
     traj = OrbitTrajectory(facing="inward", radius_m=1.2, height_m=0.4, period_s=4.0)
-    return load_scene("office"), traj, cfg
+    return load_scene("office_unlit"), traj, cfg
 
 
 def test_same_seed_same_frames_other_seed_other_noise(small_sim):

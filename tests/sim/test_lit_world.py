@@ -253,6 +253,32 @@ def test_bake_is_cached_by_content(tmp_path):
     assert not list((tmp_path / "lightmaps").glob("*.tmp"))
 
 
+_BAKE_IN_A_PROCESS = """
+import json, sys
+from sim.bake import BakeConfig, bake_scene
+from sim.scene import scene_from_dict
+spec = json.loads(sys.argv[1])
+lighting = bake_scene(scene_from_dict(spec), BakeConfig(spp=2, direct_samples=2, texel_m=0.25), sys.argv[2])
+print(json.dumps({"from_cache": lighting.from_cache, "sum": float(lighting.values.sum())}))
+"""
+
+
+def test_two_processes_baking_one_scene_bake_it_once(tmp_path):
+    """The second process waits on the cache entry's lock and loads the first one's bake."""
+    import json
+    import subprocess
+    import sys
+
+    spec = {"objects": _box_room(1.0, albedo=[0.4] * 3, emission=[1.0] * 3)}
+    procs = [subprocess.Popen([sys.executable, "-c", _BAKE_IN_A_PROCESS, json.dumps(spec), str(tmp_path)],
+                              stdout=subprocess.PIPE, text=True) for _ in range(2)]
+    results = [json.loads(p.communicate(timeout=600)[0].splitlines()[-1]) for p in procs]
+    assert all(p.returncode == 0 for p in procs)
+    assert sorted(r["from_cache"] for r in results) == [False, True]
+    assert results[0]["sum"] == results[1]["sum"]
+    assert len(list((tmp_path / "lightmaps").glob("*.npz"))) == 1
+
+
 @pytest.mark.parametrize(("spec", "match"), [
     ({"albedo": [1.0, 0.5, 0.5]}, "albedo"),
     ({"albedo": [-0.1, 0.5, 0.5]}, "albedo"),

@@ -42,7 +42,7 @@ def test_confidence_levels_split_at_the_documented_thresholds():
 @pytest.fixture(scope="module")
 def phone_session(tmp_path_factory):
     root = tmp_path_factory.mktemp("phone") / "capture"
-    sim = Simulator(load_scene("office"), load_trajectory("orbit"), phone_device(320, 240), seed=3)
+    sim = Simulator(load_scene("office_unlit"), load_trajectory("orbit"), phone_device(320, 240), seed=3)
     seen = []
     info = write_phone_session(sim, 0.5, root, envmap_size=(200, 100), on_packet=seen.append)
     return root, sim, seen, info
@@ -90,12 +90,12 @@ def test_ground_truth_is_written_beside_the_capture(phone_session):
     with np.load(root / "groundtruth" / "frames" / "000007.npz") as z:
         assert set(z.files) == {"gains"}
     meta = json.loads((root / "groundtruth" / "simulation.json").read_text())
-    assert meta["scene"] == "office" and meta["colour_frames"] == 15
+    assert meta["scene"] == "office_unlit" and meta["colour_frames"] == 15
 
 
 def test_a_tango_device_cannot_be_written_in_the_phone_layout(tmp_path):
     from sim.device import TangoDeviceConfig
 
-    sim = Simulator(load_scene("office"), load_trajectory("orbit"), TangoDeviceConfig(), seed=0)
+    sim = Simulator(load_scene("office_unlit"), load_trajectory("orbit"), TangoDeviceConfig(), seed=0)
     with pytest.raises(InvalidInputError, match="distortion"):
         write_phone_session(sim, 0.2, tmp_path / "c")
