@@ -121,6 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--tracking-noise-deg", type=float, default=0.0, metavar="DEGREES", help="σ of reported-rotation noise per packet")
     sim.add_argument("--no-auto-exposure", action="store_true", help="hold the exposure gain at 1")
     sim.add_argument("--no-auto-white-balance", action="store_true", help="hold the white-balance gains at 1")
+    sim.add_argument("--no-bracketing", action="store_true",
+                     help="no exposure brackets (HDR capture's −4 / −2 EV frames; docs/design/hdr.md)")
     sim.add_argument("--preview-envmap-height", type=int, default=500, metavar="PIXELS",
                      help="height of the ground-truth environment map preview (width = 2 × height)")
     sim.add_argument("--overwrite", action="store_true",
@@ -134,7 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "in OUT/session and replayed through the mobile path")
     sim.add_argument("--reference-every", type=float, default=5.0, metavar="SECONDS",
                      help="render a reference composite (the scene with and without the virtual object, in linear radiance) for "
-                     "the first colour frame after every SECONDS of the session, into OUT/reference/, and score the "
+                     "the first composited colour frame that shows the object in every window of SECONDS of the session, into "
+                     "OUT/reference/, and score the "
                      "composite against it in accuracy.json (composite_*_rel_rmse); 0: none")
     sim.add_argument("--reference-method", choices=("gather", "path"), default="gather",
                      help="gather: the frame without the object is the bake (Mitsuba's global illumination) and only the "
@@ -263,6 +266,7 @@ def main(argv: list[str] | None = None) -> int:
                     colour_width=colour_size[0], colour_height=colour_size[1],
                     tracking_noise_m=args.tracking_noise_m, tracking_noise_deg=args.tracking_noise_deg,
                     auto_exposure=not args.no_auto_exposure, auto_white_balance=not args.no_auto_white_balance,
+                    bracketing=not args.no_bracketing,
                     preview_envmap_height=args.preview_envmap_height, overwrite=True, progress=not args.quiet,
                     pipeline=not args.record_only, config=config, composite_every=args.composite_every,
                     video=not args.no_video, rerun=args.rerun, cache_dir=args.cache_dir, device=args.device,

@@ -1,8 +1,9 @@
 """Reference composites of a simulated run: the ground truth of what the pipeline draws.
 
-For chosen colour frames (the first at or after every ``every_s`` seconds of the session, from
-``every_s`` on) the recorder keeps the pipeline's composite, the frame's true pose and its true
-camera gains. When the session ends it renders each of those views twice
+For chosen colour frames (in each window of ``every_s`` seconds from ``every_s`` on, the first
+composited frame whose camera sees the virtual object: its bounding box projects into the image from
+in front; a window in which the camera never faces the object gives no frame) the recorder keeps
+the pipeline's composite, the frame's true pose and its true camera gains. When the session ends it renders each of those views twice
 (:func:`sim.reference.render_reference_pair`): the real scene with the virtual object inserted (the
 pipeline's mesh, at the pipeline's position, with its diffuse albedo) and without it, in linear
 radiance before the camera's exposure, white balance and noise. The composite is brought into the
@@ -39,7 +40,7 @@ from rgbd_envmap.checks import check_method, check_number
 from rgbd_envmap.colour import linear_to_srgb, srgb8_to_linear_lut
 from rgbd_envmap.metrics import composite_errors
 
-__all__ = ["ReferenceOptions", "ReferenceRecorder", "CLIP_LEVEL"]
+__all__ = ["ReferenceOptions", "ReferenceRecorder", "CLIP_LEVEL", "object_in_view"]
 
 #: a reference pixel whose camera value (radiance × gains) reaches this in any channel is not compared:
 #: the camera clips it (at 1), and so does the composite.
@@ -98,22 +99,30 @@ class ReferenceRecorder:
         self.frames: list[_Frame] = []
 
     def on_colour(self, timestamp_ns: int, groundtruth: dict) -> None:
-        """A colour packet went in; ``groundtruth`` holds its ``t_s``, ``true_pose`` and ``gains``."""
+        """A colour packet went in; ``groundtruth`` holds its ``t_s``, ``true_pose`` and ``gains``.
+        Every colour frame of an open window is a candidate until one shows the object."""
         t = groundtruth.get("t_s")
         if not self.options.enabled or t is None or t + 1e-9 < self._next_t:
             return
-        while self._next_t <= t + 1e-9:
-            self._next_t += self.options.every_s
         self._pending[int(timestamp_ns)] = (float(t), groundtruth["true_pose"], np.asarray(groundtruth["gains"], np.float64))
+        while len(self._pending) > 64:  # candidates whose frame never came out (dropped): forget the oldest
+            del self._pending[next(iter(self._pending))]
 
     def on_step(self, step, pipeline) -> None:
-        """A composited frame came out of ``pipeline``; keep it if it was chosen."""
+        """A composited frame came out of ``pipeline``; keep it if it is a candidate that shows the
+        object, and close its window."""
         chosen = self._pending.pop(int(step.timestamp_ns), None)
         if chosen is None or step.image is None or pipeline.virtual_object is None:
             return
         t, pose, gains = chosen
-        self.frames.append(_Frame(int(step.timestamp_ns), t, pose, gains, np.array(step.image),
-                                  np.array(pipeline.object_base, np.float64)))
+        if t + 1e-9 < self._next_t:  # its window was closed by an earlier frame
+            return
+        base = np.array(pipeline.object_base, np.float64)
+        if not object_in_view(np.asarray(pipeline.virtual_object.vertices, np.float64) + base, pose, self.intrinsics):
+            return
+        while self._next_t <= t + 1e-9:
+            self._next_t += self.options.every_s
+        self.frames.append(_Frame(int(step.timestamp_ns), t, pose, gains, np.array(step.image), base))
 
     def finish(self, pipeline, out: Path) -> tuple[dict, dict]:
         """Render and score the kept frames; write ``out/reference/``. Returns (metrics for
@@ -181,6 +190,20 @@ class ReferenceRecorder:
                  "reference_spp": self.options.spp, "reference_object_spp": self.options.object_spp,
                  "reference_radius_m": self.options.radius_m, "reference_render_s": float(np.sum(seconds))}
         return metrics, facts
+
+
+def object_in_view(vertices: np.ndarray, T_world_from_cam, intrinsics) -> bool:
+    """The object's bounding-box centre is in front of the camera and its box, projected through the
+    pinhole (distortion left out: a margin of a few pixels), overlaps the image."""
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    cam = T_world_from_cam.inverse().apply(np.vstack([corners, 0.5 * (lo + hi)]))
+    if cam[-1, 2] <= 0.0:
+        return False
+    front = cam[:-1][cam[:-1, 2] > 1e-6]
+    u = intrinsics.fx * front[:, 0] / front[:, 2] + intrinsics.cx
+    v = intrinsics.fy * front[:, 1] / front[:, 2] + intrinsics.cy
+    return bool(u.max() >= 0 and u.min() <= intrinsics.width - 1 and v.max() >= 0 and v.min() <= intrinsics.height - 1)
 
 
 def _camera_view(radiance: np.ndarray, gains: np.ndarray) -> np.ndarray:

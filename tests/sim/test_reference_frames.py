@@ -168,3 +168,49 @@ def test_gather_change_matches_the_view_factor_of_a_black_sphere():
     rel = (got[strong] - expect[strong]) / np.abs(expect[strong])
     assert abs(np.median(rel)) < 0.02 and np.percentile(np.abs(rel), 90) < 0.1
     assert np.abs(got[floor & ~strong] - expect[floor & ~strong]).max() < 0.01
+
+
+def _recorder_run(visible_from_s: float, every_s: float = 2.0, duration_s: float = 7.0):
+    """A recorder fed 10 Hz colour frames whose camera looks away from the object before
+    ``visible_from_s`` and at it after; returns the kept frames' times."""
+    from types import SimpleNamespace
+
+    from apps.reference_frames import ReferenceOptions, ReferenceRecorder
+    from rgbd_envmap.geometry import look_at
+    from rgbd_envmap.types import Intrinsics
+
+    intr = Intrinsics(64, 48, 50.0, 50.0, 31.5, 23.5)
+    obj = SimpleNamespace(vertices=np.array([[-0.05, -0.05, 0.0], [0.05, 0.05, 0.1]]))
+    pipeline = SimpleNamespace(virtual_object=obj, object_base=np.array([0.0, 0.0, 0.8]))
+    rec = ReferenceRecorder(None, None, intr, ReferenceOptions(every_s=every_s))
+    for k in range(int(duration_s * 10) + 1):
+        t = k / 10
+        target = [0.0, 0.0, 0.85] if t >= visible_from_s else [0.0, 0.0, 3.0]  # at the object, or at the ceiling
+        pose = look_at([1.0, 0.0, 0.85], target)
+        rec.on_colour(k, {"t_s": t, "true_pose": pose, "gains": [1.0, 1.0, 1.0]})
+        rec.on_step(SimpleNamespace(timestamp_ns=k, image=np.zeros((48, 64, 3), np.uint8)), pipeline)
+    return [f.t_s for f in rec.frames]
+
+
+def test_reference_frames_are_the_first_in_each_window_that_show_the_object():
+    # In view throughout: the first frame at or after 2, 4 and 6 s.
+    assert _recorder_run(0.0) == [2.0, 4.0, 6.0]
+    # Out of view until 4.5 s: the window from 2 s has none, the one from 4 s takes 4.5 s.
+    assert _recorder_run(4.5) == [4.5, 6.0]
+    # Never in view: no frame.
+    assert _recorder_run(99.0) == []
+
+
+def test_object_in_view_against_the_camera_geometry():
+    from apps.reference_frames import object_in_view
+    from rgbd_envmap.geometry import look_at
+    from rgbd_envmap.types import Intrinsics
+
+    intr = Intrinsics(64, 48, 50.0, 50.0, 31.5, 23.5)
+    box = np.array([[-0.05, -0.05, 0.8], [0.05, 0.05, 0.9]])
+    assert object_in_view(box, look_at([1.0, 0.0, 0.85], [0.0, 0.0, 0.85]), intr)  # straight ahead
+    assert not object_in_view(box, look_at([1.0, 0.0, 0.85], [2.0, 0.0, 0.85]), intr)  # behind the camera
+    # Beside the optical axis at 1 m depth: the image's half width there is 31.5 / 50 × 1 m = 0.63 m, so
+    # a box 0.5 m off the axis is in view and one 1.2 m off is not.
+    assert object_in_view(box, look_at([1.0, 0.5, 0.85], [0.0, 0.5, 0.85]), intr)
+    assert not object_in_view(box, look_at([1.0, 1.2, 0.85], [0.0, 1.2, 0.85]), intr)
