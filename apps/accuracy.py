@@ -249,13 +249,15 @@ class AccuracyTracker:
             "taken": cap.update.taken if cap.update is not None else 0,
             "taken_freed": cap.update.taken_freed if cap.update is not None else 0,
             "averaged": cap.update.averaged if cap.update is not None else 0,
+            "kept_view": cap.update.kept_view if cap.update is not None else 0,
             "bands": step.bands,
         }
         gains = self._gains_of(step.colour_timestamp_ns)
         if cap.reference and gains is not None:
             self._reference_gains = gains
         if cap.ccm is not None and cap.ccm.accepted and gains is not None and self._reference_gains is not None:
-            true = np.diag(self._reference_gains / gains)
+            # A bracketed frame's colours were brought to the live exposure first (HDR capture).
+            true = np.diag(self._reference_gains / gains) / getattr(step, "exposure_scale", 1.0)
             err = float(np.linalg.norm(cap.matrix - true) / np.linalg.norm(true))
             row["ccm_rel_error"] = err
             self._ccm.add(np.array([err]))

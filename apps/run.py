@@ -195,7 +195,9 @@ def run_pipeline(
                 results = pipeline.feed(packet)
             elif isinstance(packet, DepthPacket):
                 n_depth += 1
-                depth_gt = {packet.timestamp_ns: gt}  # a depth step may complete on the next packet
+                # a depth step may complete on a later packet (after the next depth packet, if it waited for
+                # a lost colour frame): the truth of the last two depth packets is kept
+                depth_gt = {**dict(list(depth_gt.items())[-1:]), packet.timestamp_ns: gt}
                 results = pipeline.feed(packet)
             else:  # a registered RGB-D frame (Kinect / TUM): depth and colour at once
                 n_depth += 1
@@ -219,7 +221,11 @@ def run_pipeline(
                         reference.on_step(result, pipeline)
                     if recorder is not None:
                         recorder.colour(result, pose)
-        pipeline.finish()
+        for result in pipeline.finish() or ():  # a depth packet that paired with the last colour frame
+            if isinstance(result, DepthStep):
+                tracker.on_depth(result, depth_gt.get(result.timestamp_ns, {}))
+                if recorder is not None:
+                    recorder.depth(result)
     finally:
         gc.unfreeze()
         if gc_was_enabled:
@@ -242,6 +248,8 @@ def run_pipeline(
     summary = {
         "depth_packets": n_depth, "colour_packets": n_colour, "depth_frames_processed": pipeline.depth_steps,
         "depth_packets_dropped": pipeline.dropped_depth, "packets_skipped": dict(sorted(pipeline.skipped.items())),
+        "depth_late_pairs": pipeline.late_pairs, "map_check_accepted": pipeline.map_check_accepted,
+        "bracketed_colour_frames": pipeline.bracketed_frames,
         "pipeline_wall_s": wall,
         "em_origin": pipeline.capture.em.origin.tolist(), **reference_facts,
         **((extra() if callable(extra) else extra) or {}),

@@ -67,6 +67,8 @@ class SimulateOptions:
     tracking_noise_deg: float = 0.0
     auto_exposure: bool = True
     auto_white_balance: bool = True
+    #: exposure brackets in the colour stream (HDR capture; ``ColourCameraConfig.bracket_every``).
+    bracketing: bool = True
     preview_envmap_height: int = 500
     overwrite: bool = False
     progress: bool = True
@@ -120,6 +122,7 @@ def run_simulate(opts: SimulateOptions) -> dict:
     colour = replace(
         ColourCameraConfig(), width=opts.colour_width, height=opts.colour_height,
         auto_exposure=opts.auto_exposure, auto_white_balance=opts.auto_white_balance,
+        **({} if opts.bracketing else {"bracket_every": 0}),
     )
     device = TangoDeviceConfig(colour=colour, tracking_noise_m=opts.tracking_noise_m, tracking_noise_deg=opts.tracking_noise_deg)
     out = Path(opts.out)

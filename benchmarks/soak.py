@@ -1,7 +1,7 @@
 """Soak test and fault recovery (issue 22, items 4 and 5): a benchmark, not a CI test.
 
     python benchmarks/soak.py soak [--minutes 10] [--colour-size 960x540] [--no-render] [--runs both] [--out runs/soak]
-    python benchmarks/soak.py recovery [--duration 40] [--trajectory alternating] [--out runs/recovery]
+    python benchmarks/soak.py recovery [--duration 40] [--trajectory alternating] [--scene office] [--only WORD] [--set K=V] [--out runs/recovery]
     python benchmarks/soak.py join [--duration 120] [--every 20] [--out runs/join]
     python benchmarks/soak.py quality LOG [--every 10] [--set KEY=VALUE]
 
@@ -176,6 +176,7 @@ def run_session(scene, trajectory, duration_s: float, faults: FaultConfig | None
         scores = map_scores(pipe.capture.em, truth)
         skipped = dict(sorted(pipe.skipped.items()))
         processed = pipe.depth_steps
+        late_pairs, accepted = pipe.late_pairs, pipe.map_check_accepted
     tracker_mib = tracker.retained_bytes() / 2**20
     t = np.array([f[0] for f in frames])
     ms = np.array([f[1] for f in frames])
@@ -191,7 +192,8 @@ def run_session(scene, trajectory, duration_s: float, faults: FaultConfig | None
         "wall_s": round(wall, 1), "peak_rss_mib": round(peak_rss_mib(), 1), "rss_mib": rss,  # (t_s, RSS MiB, tracker MiB)
         "rss_growth_after_first_minute_mib": round(max(after_first) - after_first[0], 1) if after_first else None,
         "depth_feed_ms_per_minute": per_minute,
-        "scores_over_time": scored, "accuracy_tracker_mib": round(tracker_mib, 1), "accuracy_tracker_mib_per_minute": round(tracker_mib / (duration_s / 60), 2), "faults": dict(sorted(counts.items())), "skipped": skipped, **scores,
+        "scores_over_time": scored, "accuracy_tracker_mib": round(tracker_mib, 1), "accuracy_tracker_mib_per_minute": round(tracker_mib / (duration_s / 60), 2), "faults": dict(sorted(counts.items())), "skipped": skipped,
+        "late_pairs": late_pairs, "map_check_accepted": accepted, **scores,
     }
 
 
@@ -222,19 +224,28 @@ RECOVERY_FAULTS = {
     "tracking loss, no pose, 3–5 s": FaultConfig(tracking_loss=(TrackingLoss(3.0, 2.0, "none"),)),
     "tracking loss, frozen pose, 3–4 s": FaultConfig(tracking_loss=(TrackingLoss(3.0, 1.0, "frozen"),)),
     "relocalisation jump 3–4 s (10 cm, 5°)": FaultConfig(pose_jumps=(PoseJump(3.0, 1.0, (0.1, 0.0, 0.0), 5.0),)),
+    "relocalisation jumps 5–8 s, 13–16 s (8, −5, 2 cm, 4°)": FaultConfig(pose_jumps=(
+        PoseJump(5.0, 3.0, (0.08, -0.05, 0.02), 4.0), PoseJump(13.0, 3.0, (0.08, -0.05, 0.02), 4.0))),
     "random dropouts (5 % depth, 5 % colour)": FaultConfig(seed=3, depth_dropout_p=0.05, colour_dropout_p=0.05),
 }
 
 
 def cmd_recovery(args) -> dict:
-    scene = load_scene("office")
+    scene = load_scene(args.scene)
     traj = alternating_orbits(args.duration) if args.trajectory == "alternating" else load_trajectory(args.trajectory)
     config = PipelineConfig(render=RenderConfig(enabled=False))
+    if args.set:
+        from rgbd_envmap.config import apply_overrides
+
+        config = apply_overrides(config, args.set)
     clean = run_session(scene, traj, args.duration, None, config, label="fault-free", sample_s=1e9)
     rows = [{"fault": "none", **{k: clean[k] for k in ("coverage_pct", "ws_psnr_db", "skipped", "depth_frames_processed")}}]
     for name, faults in RECOVERY_FAULTS.items():
+        if args.only and not any(word in name for word in args.only):
+            continue
         r = run_session(scene, traj, args.duration, faults, config, label=name, sample_s=1e9)
-        rows.append({"fault": name, **{k: r[k] for k in ("coverage_pct", "ws_psnr_db", "skipped", "depth_frames_processed")},
+        rows.append({"fault": name, **{k: r[k] for k in ("coverage_pct", "ws_psnr_db", "skipped", "depth_frames_processed",
+                                                          "late_pairs", "map_check_accepted")},
                      "ws_psnr_drop_db": round(clean["ws_psnr_db"] - r["ws_psnr_db"], 3),
                      "coverage_drop_pct": round(clean["coverage_pct"] - r["coverage_pct"], 3)})
     return {"command": " ".join(sys.argv), "rows": rows}
@@ -301,6 +312,11 @@ def main() -> None:
     r.add_argument("--trajectory", default="alternating",
                    help="alternating (the default orbit's two parts in turn: the fault's region is seen again) or a name")
     r.add_argument("--out", type=Path, default=Path("runs/recovery"))
+    r.add_argument("--scene", default="office", help="office (lit, the default) or office_unlit (faster)")
+    r.add_argument("--only", action="append", default=[], metavar="WORD",
+                   help="run only the faults whose name contains WORD (repeatable), besides the fault-free run")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a config override for every run (e.g. colour_fallback_lag_ms=null: the earlier pairing)")
     j = sub.add_parser("join")
     j.add_argument("--duration", type=float, default=120.0)
     j.add_argument("--every", type=float, default=20.0)

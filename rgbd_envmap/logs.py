@@ -10,6 +10,8 @@ A session directory holds::
       colour.txt             "<timestamp_s> colour/<ns>.png"
       colour/<ns>.png        the NV21 buffer as a single-channel 8-bit PNG of shape (H*3/2, W) (lossless; documented)
       colour_poses.txt       T_world_from_colour, TUM format
+      colour_exposure.txt    optional: "<timestamp_s> <exposure_s> <iso> <bracketed 0|1>" for the colour packets that
+                             carry exposure metadata (a log without it, or a packet without a line, reads as unknown)
       groundtruth/           optional: depth_poses.txt, colour_poses.txt (true poses, TUM), depth/<ns>.npz and colour/<ns>.npz (arbitrary named arrays per packet)
 
 Timestamps are integer nanoseconds in memory and ``<seconds>.<9 digits>`` in text, converted by string
@@ -48,7 +50,8 @@ __all__ = ["SessionWriter", "SessionLog", "as_logged", "read_timestamped_table",
 FORMAT, VERSION = "rgbd-envmap-session", 1
 KINDS = ("depth", "colour")
 _EXT = {"depth": "ply", "colour": "png"}
-_SESSION_ENTRIES = ("calibration.json", "groundtruth", *KINDS, *(f"{k}{s}.txt" for k in KINDS for s in ("", "_poses")))
+_SESSION_ENTRIES = ("calibration.json", "groundtruth", *KINDS, *(f"{k}{s}.txt" for k in KINDS for s in ("", "_poses")),
+                    "colour_exposure.txt")
 _PLY_FIELDS = ("x", "y", "z", "confidence")
 _TIMESTAMP_RE = re.compile(r"([0-9]+)(?:\.([0-9]{1,9}))?")
 #: Largest accepted | |q| - 1 | of a quaternion read from a pose file (TUM files print 4 decimals).
@@ -240,7 +243,15 @@ def as_logged(packet: DepthPacket | ColourPacket) -> DepthPacket | ColourPacket:
     these makes a replay of the recorded log reproduce its results bit for bit."""
     if isinstance(packet, DepthPacket):
         return DepthPacket(packet.timestamp_ns, packet.points_m, packet.confidence, _logged_pose(packet.T_world_from_depth))
-    return ColourPacket(packet.timestamp_ns, packet.nv21, _logged_pose(packet.T_world_from_colour))
+    return ColourPacket(packet.timestamp_ns, packet.nv21, _logged_pose(packet.T_world_from_colour), *_logged_exposure(packet))
+
+
+def _logged_exposure(packet: ColourPacket) -> tuple[float | None, float | None, bool]:
+    """(exposure_s, iso, bracketed) as the log reads them back: ``%.17g`` is exact for float64; a
+    packet missing either value is logged without a line, so it reads back as (None, None, False)."""
+    if packet.exposure_s is None or packet.iso is None:
+        return None, None, False
+    return packet.exposure_s, packet.iso, packet.bracketed
 
 
 def _ply_bytes(points_m: np.ndarray, confidence: np.ndarray) -> bytes:
@@ -359,6 +370,8 @@ class SessionWriter:
                 raise InvalidInputError(f"{rel}: PNG encoding failed")
             (self.root / rel).write_bytes(png.tobytes())
             T = packet.T_world_from_colour
+            if packet.exposure_s is not None and packet.iso is not None:
+                self._line("colour_exposure.txt", f"{stamp} {packet.exposure_s:.17g} {packet.iso:.17g} {int(packet.bracketed)}\n")
         if arrays:  # an .npz by hand: np.savez(**arrays) would take keys "file" / "allow_pickle" as arguments
             (self.root / "groundtruth" / kind).mkdir(parents=True, exist_ok=True)
             with zipfile.ZipFile(self.root / "groundtruth" / kind / f"{ns}.npz", "w") as zf:
@@ -399,6 +412,7 @@ class SessionLog:
     def __init__(self, root: Path, calibration: Calibration, entries: dict[str, list[tuple[int, str, RigidTransform]]]):
         """Use :meth:`open`. ``entries[kind]``: (timestamp_ns, path relative to root, pose) per packet."""
         self.root, self.calibration, self._entries = root, calibration, entries
+        self._exposure: dict[int, tuple[float, float, bool]] = {}  # colour_exposure.txt, when the log has it
         self.dropped_points: dict[str, int] = {}
         self.warnings: list[str] = [f"{root / (kind + '.txt')}: empty index (no {kind} packets)"
                                     for kind in KINDS if not entries[kind]]
@@ -428,7 +442,9 @@ class SessionLog:
                 if ns not in poses:
                     raise LogFormatError(f"{index}, line {lineno}: no pose for {format_timestamp(ns)} in {kind}_poses.txt")
                 entries[kind].append((ns, rel, poses[ns]))
-        return cls(root, calibration, entries)
+        log = cls(root, calibration, entries)
+        log._exposure = _read_exposure(root / "colour_exposure.txt")
+        return log
 
     def __len__(self) -> int:
         return sum(len(v) for v in self._entries.values())
@@ -477,7 +493,7 @@ class SessionLog:
         want = (self.calibration.colour.height * 3 // 2, self.calibration.colour.width)
         if img.dtype != np.uint8 or img.shape != want:
             raise LogFormatError(f"{path}: expected a {want} uint8 NV21 image, got {img.shape} {img.dtype}")
-        return _packet(path, ColourPacket, ns, img, T)
+        return _packet(path, ColourPacket, ns, img, T, *self._exposure.get(ns, (None, None, False)))
 
     def groundtruth(self, kind: str, timestamp_ns: int) -> dict[str, np.ndarray]:
         """Named ground-truth arrays stored with the ``kind`` packet at ``timestamp_ns``; {} if none."""
@@ -494,6 +510,20 @@ class SessionLog:
         """{timestamp_ns: true T_world_from_<kind>} from ``groundtruth/<kind>_poses.txt``; {} if none."""
         path = self.root / "groundtruth" / f"{_check_kind(kind)}_poses.txt"
         return _read_poses(path, kind) if path.is_file() else {}
+
+
+def _read_exposure(path: Path) -> dict[int, tuple[float, float, bool]]:
+    """{timestamp_ns: (exposure_s, iso, bracketed)} of ``colour_exposure.txt``; {} when the log has
+    none (logs written before exposure metadata)."""
+    if not path.is_file():
+        return {}
+    out = {}
+    for lineno, ns, (t, iso, br) in read_timestamped_table(path, 4):
+        try:
+            out[ns] = (float(t), float(iso), {"0": False, "1": True}[br])
+        except (ValueError, KeyError):
+            raise LogFormatError(f"{path}, line {lineno}: expected <exposure_s> <iso> <0|1>, got {t!r} {iso!r} {br!r}") from None
+    return out
 
 
 def _check_kind(kind: str) -> str:

@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from collections.abc import Mapping
 
-from rgbd_envmap.checks import check_array, check_instance, check_number, check_range
+from rgbd_envmap.checks import check_array, check_flag, check_instance, check_number, check_range
 from rgbd_envmap.errors import DTypeError, FrameError, InvalidInputError, NonFiniteError, RangeError, ShapeError
 
 __all__ = [
@@ -97,6 +97,8 @@ class _ArrayEq:
             return NotImplemented
         for f in dataclasses.fields(self):
             a, b = getattr(self, f.name), getattr(other, f.name)
+            if isinstance(a, np.ndarray) != isinstance(b, np.ndarray):  # an optional array and None
+                return False
             if isinstance(a, np.ndarray):
                 if a.dtype != b.dtype or not np.array_equal(a, b):
                     return False
@@ -384,11 +386,19 @@ class ColourPacket(_ArrayEq):
         nv21: (H * 3 // 2, W) uint8 Y'UV420sp buffer (Y plane, then interleaved V, U at half resolution).
         T_world_from_colour: the colour camera's pose at capture; named frames must be
             ``("world", "colour")`` (:class:`FrameError` otherwise).
+        exposure_s: the frame's exposure time in seconds, or None where the camera does not say
+            (older logs); with ``iso`` it gives the frame's exposure (HDR capture, docs/design/hdr.md).
+        iso: the frame's sensitivity (ISO), or None.
+        bracketed: a frame of an exposure bracket, taken off the auto-exposure for HDR capture: it
+            goes into the map but is neither composited nor shown.
     """
 
     timestamp_ns: int
     nv21: np.ndarray
     T_world_from_colour: RigidTransform
+    exposure_s: float | None = None
+    iso: float | None = None
+    bracketed: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "timestamp_ns", _timestamp(self.timestamp_ns, "timestamp_ns"))
@@ -400,6 +410,15 @@ class ColourPacket(_ArrayEq):
             )
         _frozen_array(self, "nv21", buf)
         check_transform(self.T_world_from_colour, "T_world_from_colour", "world", "colour")
+        for name in ("exposure_s", "iso"):
+            value = check_number(getattr(self, name), name, low=0.0, low_open=True, optional=True)
+            object.__setattr__(self, name, None if value is None else float(value))
+        object.__setattr__(self, "bracketed", check_flag(self.bracketed, "bracketed"))
+
+    @property
+    def exposure(self) -> float | None:
+        """Exposure time × ISO (the sensor's linear gain up to a constant), or None when either is unknown."""
+        return None if self.exposure_s is None or self.iso is None else self.exposure_s * self.iso
 
     @property
     def kind(self) -> str:
@@ -484,6 +503,8 @@ class RGBDFrame(_ArrayEq):
         T_world_from_cam: pose of the frame's camera (named frames: into ``"world"``).
         intrinsics: the frame's (depth sensor) intrinsics.
         timestamp_ns: capture time of the depth data.
+        clipped: (H, W) bool, pixels whose colour has a channel at the camera's clip level (HDR
+            capture: the map keeps such a colour as a lower bound only), or None (none known).
     """
 
     rgb: np.ndarray
@@ -492,6 +513,7 @@ class RGBDFrame(_ArrayEq):
     T_world_from_cam: RigidTransform
     intrinsics: Intrinsics
     timestamp_ns: int
+    clipped: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         check_instance(self.intrinsics, Intrinsics, "intrinsics")
@@ -504,6 +526,8 @@ class RGBDFrame(_ArrayEq):
         _frozen_array(self, "depth_m", depth.astype(np.float32))
         _frozen_array(self, "known", known)
         object.__setattr__(self, "timestamp_ns", _timestamp(self.timestamp_ns, "timestamp_ns"))
+        if self.clipped is not None:
+            _frozen_array(self, "clipped", check_array(self.clipped, "clipped", shape=(h, w), dtype="bool"))
 
     def with_depth(self, depth_m: np.ndarray) -> "RGBDFrame":
         """This frame with ``depth_m`` ((H, W) float) as its depth; colours, mask, pose and time

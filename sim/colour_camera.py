@@ -8,6 +8,18 @@ Auto-exposure meters the frame it just captured (mean luminance of the clipped i
 exposure in log space a fraction ``ae_rate`` of the way to the value that would put that mean at
 ``ae_target``; auto-white-balance does the same towards grey-world gains. The new gains apply from the
 next frame, so a change in the scene shows up first as an over/under-exposed frame, as on a phone.
+
+**Exposure bracketing** (HDR capture, docs/design/hdr.md): each run of ``bracket_every`` colour
+frames ends with a bracket, its frames ``bracket_stride`` frames apart (6 at 30 / 5 Hz: each on a
+ToF frame, so each pairs with depth), exposed at ``bracket_ev`` EV from the auto-exposure; the
+next run's first frame is the bracket's 0 EV frame, at the live exposure (frame 0 is live, so the
+pipeline's reference frame is too). Bracket frames do not move the auto-exposure
+or white balance. Each frame reports its exposure time and ISO (gain 1 is 1/100 s at ISO 100; the
+time is at most one frame period, the rest is ISO), as phone cameras do.
+
+References:
+    Nikodým, Havran et al., Multiple Live Video Environment Map Sampling, §3: three exposures fused
+    into one HDR light probe.
 """
 
 from __future__ import annotations
@@ -19,6 +31,7 @@ import numba
 import numpy as np
 
 from rgbd_envmap.colour import encode_nv21, linear_to_srgb
+from rgbd_envmap.errors import RangeError
 from rgbd_envmap.geometry import pixel_rays
 from rgbd_envmap.types import Distortion, Intrinsics, RigidTransform
 from sim.raycast import SceneRaycaster
@@ -102,6 +115,36 @@ class ColourCameraConfig:
     wb_range: tuple[float, float] = (0.4, 2.5)
     #: metering looks at every ``meter_stride``-th pixel along each axis.
     meter_stride: int = 8
+    #: exposure bracketing: EV offsets of a bracket's frames from the auto-exposure (empty: off);
+    #: 0 EV is the live frame that follows.
+    bracket_ev: tuple[float, ...] = (-4.0, -2.0)
+    #: one bracket in every run of this many colour frames, at its end (0: off).
+    bracket_every: int = 30
+    #: colour frames between a bracket's frames (6: one per ToF frame at 30 / 5 Hz).
+    bracket_stride: int = 6
+
+    def __post_init__(self) -> None:
+        if self.bracket_every < 0 or self.bracket_stride < 1:
+            raise RangeError(f"ColourCameraConfig.bracket_every / bracket_stride: expected ≥ 0 / ≥ 1, got "
+                             f"{self.bracket_every} / {self.bracket_stride}")
+        if self.bracket_every and len(self.bracket_ev) * self.bracket_stride > self.bracket_every:
+            raise RangeError(f"ColourCameraConfig.bracket_every: a bracket of {len(self.bracket_ev)} frames {self.bracket_stride} apart does not fit "
+                             f"in bracket_every={self.bracket_every} frames")
+
+    def bracket_at(self, index: int) -> float | None:
+        """The EV offset of colour frame ``index`` when it is a bracket frame, else None."""
+        if not self.bracket_every or not self.bracket_ev:
+            return None
+        k = index % self.bracket_every - (self.bracket_every - len(self.bracket_ev) * self.bracket_stride)
+        if k < 0 or k % self.bracket_stride:
+            return None
+        return float(self.bracket_ev[k // self.bracket_stride])
+
+    def exposure_time_iso(self, gain: float) -> tuple[float, float]:
+        """The (exposure time in s, ISO) a phone reports for an exposure gain: gain 1 is 1/100 s at
+        ISO 100; the time is capped at one frame period and ISO makes up the rest."""
+        t = min(0.01 * gain, 1.0 / self.rate_hz)
+        return t, gain / t
 
     @property
     def intrinsics(self) -> Intrinsics:
@@ -149,6 +192,11 @@ class ColourCapture:
     gains: np.ndarray
     radiance: np.ndarray
     next_state: AutoExposureState
+    #: exposure time (s) and ISO of the frame (their product is its exposure gain).
+    exposure_s: float = 0.01
+    iso: float = 100.0
+    #: a bracket frame (exposed off the auto-exposure; ``ev`` of :func:`capture_colour`).
+    bracketed: bool = False
 
 
 def capture_colour(
@@ -158,8 +206,11 @@ def capture_colour(
     config: ColourCameraConfig,
     state: AutoExposureState,
     rng: np.random.Generator,
+    ev: float | None = None,
 ) -> ColourCapture:
-    """Render, expose, encode and meter one colour frame."""
+    """Render, expose, encode and meter one colour frame. ``ev``: a bracket frame, exposed at ``ev``
+    EV from the auto-exposure (``config.bracket_at``); it leaves the auto-exposure and white balance
+    as they are. None: a live frame."""
     intr = config.intrinsics
     dirs = _unit_rays_cached(intr)
     hits = raycaster.cast(T_world_from_colour.translation, T_world_from_colour.rotate(dirs), t_s, normals=False)
@@ -170,10 +221,16 @@ def capture_colour(
     else:
         offset = int(rng.integers(0, NOISE_BANK_SIZE))
         noise = noise_bank()[offset:offset + n_values]
+    scale = 1.0 if ev is None else 2.0 ** ev
+    gains = state.gains * scale
     srgb8 = expose_quantise(
-        hits.radiance, state.gains.astype(np.float32), np.float32(config.shot_noise),
+        hits.radiance, gains.astype(np.float32), np.float32(config.shot_noise),
         np.float32(config.read_noise**2), noise, SRGB8_LUT,
     ).reshape(intr.height, intr.width, 3)
     s = config.meter_stride
-    next_state = state.update(radiance[::s, ::s].reshape(-1, 3).astype(np.float64), config)
-    return ColourCapture(encode_nv21(srgb8), state.gains, radiance, next_state)
+    if ev is None:
+        next_state = state.update(radiance[::s, ::s].reshape(-1, 3).astype(np.float64), config)
+    else:
+        next_state = state
+    exposure_s, iso = config.exposure_time_iso(state.exposure * scale)
+    return ColourCapture(encode_nv21(srgb8), gains, radiance, next_state, exposure_s, iso, ev is not None)

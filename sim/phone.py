@@ -78,7 +78,8 @@ def phone_device(colour_width: int = PHONE_COLOUR_SIZE[0], colour_height: int = 
     colour frame). The ToF model's other settings are the Tango's except ``max_range_m`` (ARKit reaches 5 m).
     """
     colour = replace(ColourCameraConfig(), width=int(colour_width), height=int(colour_height), hfov_deg=float(hfov_deg),
-                     distortion=Distortion(), auto_exposure=bool(auto_exposure), auto_white_balance=bool(auto_white_balance))
+                     distortion=Distortion(), auto_exposure=bool(auto_exposure), auto_white_balance=bool(auto_white_balance),
+                     bracket_every=0)  # a phone capture app records one exposure stream (the layout holds no exposures)
     if colour.width % 2 or colour.height % 2 or colour.width <= 0 or colour.height <= 0:
         raise InvalidInputError(f"colour size: expected an even width and height > 0 (NV21), got {colour.width}×{colour.height}")
     ratio = colour.rate_hz / float(depth_rate_hz) if depth_rate_hz > 0 else 0.0

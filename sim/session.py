@@ -149,10 +149,12 @@ class Simulator:
                     continue
                 t_s = (timestamp_ns - self.start_ns) * 1e-9
                 T_true = self.true_pose_colour(t_s)
-                cap = capture_colour(self.raycaster, T_true, t_s, self.device.colour, state, self._rng(_COLOUR, index))
+                cap = capture_colour(self.raycaster, T_true, t_s, self.device.colour, state, self._rng(_COLOUR, index),
+                                     self.device.colour.bracket_at(index))
                 state = cap.next_state
                 reported = self.device.reported(T_true, self._rng(_TRACKING, 2 * index + 1))
-                yield SimPacket(ColourPacket(timestamp_ns, cap.nv21, reported), T_true, {"gains": cap.gains}, t_s)
+                packet = ColourPacket(timestamp_ns, cap.nv21, reported, cap.exposure_s, cap.iso, cap.bracketed)
+                yield SimPacket(packet, T_true, {"gains": cap.gains}, t_s)
             return
         yield from self._reordered(self._faulty(duration_s))
 
@@ -165,7 +167,7 @@ class Simulator:
         """The faulty stream in timestamp order, before reordering."""
         f = self.faults
         state = AutoExposureState()
-        last_colour: tuple[np.ndarray, np.ndarray] | None = None  # the camera's last delivered (nv21, gains)
+        last_colour: tuple | None = None  # the camera's last delivered (nv21, gains, exposure metadata)
         # Jittered timestamps stay within ±0.25 of a colour period of the capture times, so each
         # stream keeps its order and merging by timestamp needs only the capture order plus a
         # look-ahead over one jitter width: a packet is released once no later capture can precede it.
@@ -185,9 +187,10 @@ class Simulator:
             loss = f.tracking_at(stamp_s)
             if kind == "colour":  # the camera captures whatever happens to the frame afterwards
                 T_true = self.true_pose_colour(t_s)
-                cap = capture_colour(self.raycaster, T_true, t_s, self.device.colour, state, self._rng(_COLOUR, index))
+                cap = capture_colour(self.raycaster, T_true, t_s, self.device.colour, state, self._rng(_COLOUR, index),
+                                     self.device.colour.bracket_at(index))
                 state = cap.next_state
-                nv21, gains = cap.nv21, cap.gains
+                nv21, gains, meta = cap.nv21, cap.gains, (cap.exposure_s, cap.iso, cap.bracketed)
             if loss is not None and loss.mode == "none":
                 self._report(kind, index, stamp_ns, t_s, faults + ["no_pose"])
                 continue
@@ -195,7 +198,7 @@ class Simulator:
                 self._report(kind, index, stamp_ns, t_s, faults + ["colour_dropout"])
                 continue
             if kind == "colour" and last_colour is not None and f.frozen_colour(index, t_s):
-                nv21, gains = last_colour  # the last image delivered, again
+                nv21, gains, meta = last_colour  # the last image delivered, again
                 faults.append("frozen_colour")
             stream = 2 * index + (kind == "colour")
             if loss is not None:  # frozen: the pose the tracker had when it was lost
@@ -215,8 +218,8 @@ class Simulator:
                 packet = DepthPacket(stamp_ns, points, confidence, RigidTransform(reported, "world", "depth"))
                 out = SimPacket(packet, sp.true_pose, sp.groundtruth, t_s, tuple(faults))
             else:
-                last_colour = (nv21, gains)
-                packet = ColourPacket(stamp_ns, nv21, RigidTransform(reported, "world", "colour"))
+                last_colour = (nv21, gains, meta)
+                packet = ColourPacket(stamp_ns, nv21, RigidTransform(reported, "world", "colour"), *meta)
                 out = SimPacket(packet, T_true, {"gains": gains}, t_s, tuple(faults))
             n += 1
             heapq.heappush(held, (stamp_ns, kind != "depth", n, (out, index)))

@@ -298,16 +298,17 @@ def _list_footprints(rec, n_bands, k0, n0, k1, n1, per_band, listed):  # pragma:
 def _update_bands(
     band_lo, band_hi, per_band, listed, rec, rec_key, colours, origin, device, height, width, planes, depth, valid,
     trusted_r, removal_r, zband, tiles, row_sc, col_sc, log_idx, log_old, log_valid, log_n, carve, cam, seen,
-    averaged, avg, views,
+    averaged, avg, views, clipped, clip_flags, hdr,
 ):  # pragma: no cover - compiled
     """:func:`update_kernel`'s steps 3 and 4 for bands ``band_lo`` to ``band_hi`` − 1: the bands'
     footprints z-buffered into ``zband`` (``tiles`` flag the touched 32-column tiles), then the rules
     and writes row by row, appending to the log from ``log_n`` on. Bands touch disjoint rows, so two
     calls on disjoint band ranges, each with its own ``zband``, ``tiles`` and log, may run at once.
     ``averaged`` (H·W,) uint8, ``avg`` = (colour_average, same-surface tolerance relative, absolute,
-    view_ratio) and ``views`` (H·W,) float32: see :func:`update_kernel`.
+    view_ratio) and ``views`` (H·W,) float32, ``clipped`` (N,) uint8, ``clip_flags`` (H·W,) uint8
+    and ``hdr``: see :func:`update_kernel`.
     Returns (pixels touched, taken, taken that had data, of those closer, freed, carving tests, averaged,
-    kept for the viewpoint, log length)."""
+    kept for the viewpoint, kept for clipping, log length)."""
     band_rows = 1 << BAND_SHIFT
     n_tiles = (width + (1 << TILE_SHIFT) - 1) >> TILE_SHIFT
     hw = height * width
@@ -324,6 +325,7 @@ def _update_bands(
     theta_dev = math.acos(_mx(-1.0, _mn(1.0, oz / dev_r))) if dev_r > 0.0 else 0.0
     cap = math.asin(_mx(removal_r, 0.0) / dev_r) + 2.0 * math.pi / height if removal_r < dev_r else math.pi
     n_touched, n_taken, n_ok, n_closer, n_freed, n_tested, n_avg, n_kept = 0, 0, 0, 0, 0, 0, 0, 0
+    n_kept_clip = 0
     n_average, same_rel, same_abs, view_ratio = int(avg[0]), avg[1], avg[2], avg[3]
     # The viewpoint rule: off (one dummy entry in ``views``) for an infinite ratio; the trusted
     # sphere's samples are never refused.
@@ -566,7 +568,18 @@ def _update_bands(
                 if by_view and surface and dev_r > views[pv] * view_ratio:
                     n_kept += 1
                     continue
-                same = surface & (n_average > 1)
+                # HDR (clip flags, docs/design/hdr.md): a clipped sample never overwrites an
+                # unclipped colour of the same surface; over a clipped one it keeps the larger
+                # value per channel (both are lower bounds); an unclipped sample replaces a
+                # clipped colour. Without ``hdr`` the flags are one-entry dummies, all 0.
+                pc = p if hdr else _u(0)
+                cs = clipped[i if hdr else _u(0)] != 0
+                cp = clip_flags[pc] != 0
+                if surface and cs and not cp:
+                    n_kept_clip += 1
+                    continue
+                both = surface & cs & cp
+                same = surface & (n_average > 1) & (cs == cp) & (not both)
                 pa = p if n_average > 1 else _u(0)  # one dummy entry when not averaging
                 a = averaged[pa]
                 weight = inv[a]
@@ -583,8 +596,10 @@ def _update_bands(
                     log_n += 1
                 for ch in range(3):
                     old, new = pf[ch, p], colours[i, ch]
-                    pf[ch, p] = old + (new - old) * weight if same else new
+                    pf[ch, p] = old + (new - old) * weight if same else (_mx(old, new) if both else new)
                 averaged[pa] = _mn(a + np.uint8(1), avg_top) if same else np.uint8(0)
+                if hdr:
+                    clip_flags[pc] = np.uint8(cs)
                 if view_on:
                     views[pv] = _mn(views[pv], dev32) if surface else dev32
                 df[p] = r if (not ok) | free else 0.5 * (d + r)
@@ -592,27 +607,30 @@ def _update_bands(
             for j in range(n_runs):  # the band's z-buffer is empty again where this row was touched
                 for c in range(run_lo[j], run_hi[j]):
                     zband[_u(zb + c)] = EMPTY_Z
-    return n_touched, n_taken - n_kept, n_ok, n_closer, n_freed, n_tested, n_avg, n_kept, log_n
+    return n_touched, n_taken - n_kept - n_kept_clip, n_ok, n_closer, n_freed, n_tested, n_avg, n_kept, n_kept_clip, log_n
 
 
 @numba.njit(cache=True, inline="always")
-def _rule_counts(origin, device, trusted_r, n_taken, n_ok, n_closer, n_freed, n_tested, n_avg, n_kept):  # pragma: no cover - compiled
+def _rule_counts(origin, device, trusted_r, n_taken, n_ok, n_closer, n_freed, n_tested, n_avg, n_kept,
+                 n_kept_clip):  # pragma: no cover - compiled
     """The update's counts (taken, empty, closer, trusted, removal, freed, carving tests, averaged,
-    kept for the viewpoint)
+    kept for the viewpoint, kept for clipping)
     from four sums: a freed pixel had data and was neither closer nor trusted (carving tests only
     pixels the other rules refuse), and "trusted" holds for all pixels or none."""
     ox, oy, oz = device[0] - origin[0], device[1] - origin[1], device[2] - origin[2]
     trusted = rule_trusted(math.sqrt(ox * ox + oy * oy + oz * oz), trusted_r)
     n_trusted = n_ok - n_closer if trusted else 0
     n_removal = 0 if trusted else n_ok - n_closer - n_freed
-    return np.array([n_taken, n_taken - n_ok, n_closer, n_trusted, n_removal, n_freed, n_tested, n_avg, n_kept], np.int64)
+    return np.array([n_taken, n_taken - n_ok, n_closer, n_trusted, n_removal, n_freed, n_tested, n_avg, n_kept,
+                     n_kept_clip], np.int64)
 
 
 @numba.njit(cache=True, parallel=PRANGE_ONLY)
 def update_kernel(
     points, colours, fill_only, origin, device, height, width, focal_px, splat, splat_scale, max_splat,
     planes, depth, valid, trusted_r, removal_r, zband, tiles, rec, rec_key, listed, row_sc, col_sc,
-    log_idx, log_old, log_valid, log_n, carve, cam, seen, averaged, avg, views, zband2, tiles2, log2_idx,
+    log_idx, log_old, log_valid, log_n, carve, cam, seen, averaged, avg, views, clipped, clip_flags, hdr, zband2,
+    tiles2, log2_idx,
     log2_old, log2_valid,
 ):  # pragma: no cover - compiled
     """:func:`update`: the frame's samples z-buffered (the closest wins, the first on equal float32
@@ -638,8 +656,14 @@ def update_kernel(
     exceeds view_ratio × ``views[p]`` (flat (H·W,) float32, the nearest device distance the pixel's
     surface was seen from: the minimum over same-surface takeovers, the device's distance after any
     other); with an infinite ratio ``views`` is a one-entry dummy, never read.
+    HDR (``hdr``): ``clipped`` (N,) uint8 flags the samples with a clipped channel, ``clip_flags``
+    (H·W,) uint8 the pixels whose colour came from such a sample. A taken pixel with the same-surface
+    test true is kept as it is (counted, not taken) for a clipped sample over an unclipped colour;
+    a clipped sample over a clipped colour keeps the larger value per channel (both are lower
+    bounds of the radiance); a sample whose flag differs from the pixel's otherwise replaces the
+    colour. Every other write stores the sample's flag. Without ``hdr`` both are one-entry zeros.
     Returns (pixels touched, counts: taken, empty, closer, trusted, removal, freed, carving tests,
-    averaged, kept for the viewpoint; new log length).
+    averaged, kept for the viewpoint, kept for clipping; new log length).
 
     On two threads (one where numba has one; the map, counts and change log are the same bit for
     bit): the footprints of each half of the samples are recorded at the same time and listed, then
@@ -667,17 +691,23 @@ def update_kernel(
     while split < n_bands and done + work[split] <= half:
         done += work[split]
         split += 1
-    res = np.zeros((2, 9), np.int64)
+    res = np.zeros((2, 10), np.int64)
     for t in numba.prange(2):
         # One call site (a call per branch compiled _update_bands twice, for its literal arguments).
         lo, hi, n_log = (0, split, log_n) if t == 0 else (split, n_bands, 0)
-        a, b, c, d, e, f, g, k, h = _update_bands(
+        # The per-part buffers as locals: ternaries inside a call this long compile to a call
+        # numba cannot read (CALL_FUNCTION_EX).
+        zb_t = zband if t == 0 else zband2
+        tiles_t = tiles if t == 0 else tiles2
+        li_t = log_idx if t == 0 else log2_idx
+        lo_t = log_old if t == 0 else log2_old
+        lv_t = log_valid if t == 0 else log2_valid
+        a, b, c, d, e, f, g, k, kc, h = _update_bands(
             lo, hi, per_band, listed, rec, rec_key, colours, origin, device, height, width, planes, depth, valid,
-            trusted_r, removal_r, zband if t == 0 else zband2, tiles if t == 0 else tiles2, row_sc, col_sc,
-            log_idx if t == 0 else log2_idx, log_old if t == 0 else log2_old, log_valid if t == 0 else log2_valid,
-            n_log, carve, cam, seen, averaged, avg, views)
+            trusted_r, removal_r, zb_t, tiles_t, row_sc, col_sc, li_t, lo_t, lv_t,
+            n_log, carve, cam, seen, averaged, avg, views, clipped, clip_flags, hdr)
         res[t, 0], res[t, 1], res[t, 2], res[t, 3], res[t, 4], res[t, 5], res[t, 6], res[t, 7] = a, b, c, d, e, f, g, k
-        res[t, 8] = h
+        res[t, 8], res[t, 9] = h, kc
     # The lower part's log after the upper part's (while it fits: the log's length counts on past
     # its capacity, as the single-threaded kernel's does).
     n0, n1 = res[0, 8], res[1, 8]
@@ -688,7 +718,7 @@ def update_kernel(
         log_valid[n0 + j] = log2_valid[j]
     log_n = n0 + n1
     t = res[0] + res[1]
-    return t[0], _rule_counts(origin, device, trusted_r, t[1], t[2], t[3], t[4], t[5], t[6], t[7]), log_n
+    return t[0], _rule_counts(origin, device, trusted_r, t[1], t[2], t[3], t[4], t[5], t[6], t[7], t[9]), log_n
 
 
 

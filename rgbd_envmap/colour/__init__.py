@@ -1,5 +1,6 @@
 """Colour: the sensor boundary (NV21, sRGB: :mod:`rgbd_envmap.colour.nv21`) and the colour-correction
-matrix of paper 003 §5 (:mod:`rgbd_envmap.colour.ccm`). Every public name of both is re-exported here.
+matrix of paper 003 §5 (:mod:`rgbd_envmap.colour.ccm`) and HDR capture (frames brought to one
+exposure, clipped pixels flagged: :mod:`rgbd_envmap.colour.hdr`). Every public name is re-exported here.
 """
 
 from rgbd_envmap.colour.ccm import (
@@ -15,6 +16,7 @@ from rgbd_envmap.colour.ccm import (
     estimate_ccm,
     invert_ccm,
 )
+from rgbd_envmap.colour.hdr import HDRConfig, clipped_pixels, exposure_scale, hdr_frame
 from rgbd_envmap.colour.nv21 import decode_nv21, encode_nv21, linear_to_srgb, srgb8_to_linear_lut, srgb_to_linear
 
 __all__ = [
@@ -34,4 +36,8 @@ __all__ = [
     "ccm_from_sums",
     "apply_ccm",
     "invert_ccm",
+    "HDRConfig",
+    "clipped_pixels",
+    "exposure_scale",
+    "hdr_frame",
 ]

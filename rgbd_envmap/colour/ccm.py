@@ -1,6 +1,9 @@
 """The colour-correction matrix of paper 003 §5: :func:`estimate_ccm` fits it from paired colours
 and gates it, :func:`ccm_from_sums` does the same from the pairs' normal-equation sums (the capture
 accumulates them in the pair pass), :func:`apply_ccm` applies it and :func:`invert_ccm` inverts it.
+Where the frame's exposure relative to the reference's is known, both fits take it as ``known_gain``:
+the fitted matrix keeps its white balance and channel mixing, and its overall gain is set to the known
+one, so a change of the scene's light is not taken for an exposure change.
 
 Colours are linear RGB. The least-squares fit, its ridge variant and the gate are documented at
 :func:`estimate_ccm`; the compiled sums and 3×3 solve are in :mod:`rgbd_envmap._kernels.ccm`, and
@@ -30,6 +33,7 @@ from rgbd_envmap.errors import InvalidInputError, NonFiniteError, RangeError, Sh
 __all__ = [
     "CCM_METHODS",
     "SUMS_CCM_METHODS",
+    "GAIN_CHANNELS",
     "DEFAULT_RIDGE",
     "DEFAULT_MAX_CONDITION",
     "MIN_SPREAD_SNR",
@@ -37,6 +41,8 @@ __all__ = [
     "estimate_ccm",
     "ccm_sums",
     "ccm_from_sums",
+    "check_known_gain",
+    "matrix_gain",
     "apply_ccm",
     "invert_ccm",
 ]
@@ -48,6 +54,13 @@ __all__ = [
 CCM_METHODS: tuple[str, ...] = ("least_squares", "ridge", "Cheung 2004", "Finlayson 2015")
 #: The methods fitted from the pairs' normal-equation sums alone (the others need the pairs).
 SUMS_CCM_METHODS: tuple[str, ...] = ("least_squares", "ridge")
+#: Names accepted by ``gain_channel``: which response of the matrix to grey, ``M·(1, 1, 1)ᵀ``, is its
+#: overall gain (the one ``known_gain`` sets). ``"green"``: the green channel's; a camera's white balance
+#: keeps the green gain at 1 (the simulated camera's does, as most ISPs and DNG's AsShotNeutral), so
+#: with the exposure divided out the true matrix has a green gain of exactly 1. ``"luminance"``: the
+#: Rec. 709 luminance of that response, exact only when the white balance does not move luminance.
+GAIN_CHANNELS: tuple[str, ...] = ("green", "luminance")
+_GAIN_WEIGHTS = {"green": np.array([0.0, 1.0, 0.0]), "luminance": np.array([0.2126, 0.7152, 0.0722])}
 #: ``estimate_ccm``'s default ``ridge`` weight.
 DEFAULT_RIDGE = 0.1
 
@@ -85,6 +98,10 @@ class CCMResult:
             ``"rank-deficient (condition number inf)"``, ``"non-finite (...)"``.
         method: the method name that produced ``matrix``.
         condition: condition number of the column-equilibrated normal matrix (NaN when not computed).
+        fitted_gain: with ``known_gain``, the overall gain (:func:`matrix_gain`) of the free fit, which
+            ``matrix`` replaced by the known one: fitted / known is the map's brightness over the
+            frame's at the same surfaces, the exposure divided out (1: the scene's light did not
+            change; 2.5: the room darkened to 40 % since the map saw it). NaN without ``known_gain``.
     """
 
     matrix: np.ndarray
@@ -94,6 +111,7 @@ class CCMResult:
     reason: str
     method: str
     condition: float = math.nan
+    fitted_gain: float = math.nan
 
     def __post_init__(self) -> None:
         m = check_array(self.matrix, "matrix", shape=(3, 3), dtype=("float", "int"))
@@ -104,6 +122,7 @@ class CCMResult:
         object.__setattr__(self, "n_pairs", int(self.n_pairs))
         object.__setattr__(self, "accepted", bool(self.accepted))
         object.__setattr__(self, "condition", float(self.condition))
+        object.__setattr__(self, "fitted_gain", float(self.fitted_gain))
         if self.accepted == bool(self.reason):
             raise InvalidInputError(
                 f"CCMResult: reason must be empty exactly when accepted, got accepted={self.accepted}, "
@@ -117,6 +136,7 @@ class CCMResult:
             np.array_equal(self.matrix, other.matrix, equal_nan=True)
             and (self.mse == other.mse or (math.isnan(self.mse) and math.isnan(other.mse)))
             and (self.condition == other.condition or (math.isnan(self.condition) and math.isnan(other.condition)))
+            and (self.fitted_gain == other.fitted_gain or (math.isnan(self.fitted_gain) and math.isnan(other.fitted_gain)))
             and (self.n_pairs, self.accepted, self.reason, self.method)
             == (other.n_pairs, other.accepted, other.reason, other.method)
         )
@@ -155,6 +175,8 @@ def estimate_ccm(
     saturation: float | None = 1.0,
     noise_std: float | None = None,
     ridge: float = DEFAULT_RIDGE,
+    known_gain: float | None = None,
+    gain_channel: str = "green",
 ) -> CCMResult:
     """Fit the 3×3 colour-correction matrix M with ``dst ≈ src @ M.T`` and gate it (paper 003 §5).
 
@@ -202,6 +224,15 @@ def estimate_ccm(
     their previous accepted matrix (§5.2: do not project the frame into the EM either). Bad data
     content never raises.
 
+    Known exposure (docs/design/colour_correction.md): with ``known_gain`` g (the reference frame's
+    exposure over this frame's, exposure time × ISO), the fitted matrix M⁰ keeps its white balance and
+    channel mixing and takes the known gain: M = g · M⁰ / G(M⁰), G = :func:`matrix_gain` along
+    ``gain_channel``. A change of the scene's light by a neutral factor k since the map saw it scales
+    the free fit by 1/k in every channel, and this undoes it exactly; the result records G(M⁰) as
+    ``fitted_gain``. The gates and the MSE are the free fit's (whether the pairs agree under some
+    3×3 matrix; the residual of M itself holds the light change, which is the map's to take); a free
+    fit whose G is not > 0 and finite is rejected, ``"gain ... not positive"``.
+
     Args:
         src: (..., 3) float linear RGB of the current frame; leading axes are flattened.
         dst: (..., 3) float linear RGB reference colours, same shape as ``src``.
@@ -212,6 +243,10 @@ def estimate_ccm(
         saturation: src channel level at or above which a pair is dropped; None keeps every pair.
         noise_std: per-channel standard deviation of the noise in src, linear units (e.g. from the
             sensor model); None (default) skips gate 4.
+        ridge: the ridge weight λ of ``method="ridge"``, relative to tr(AᵀA) / 3.
+        known_gain: None (default: the gain is fitted, the paper), or the matrix's overall gain, a
+            finite number > 0.
+        gain_channel: one of :data:`GAIN_CHANNELS`, used with ``known_gain``.
 
     Returns:
         :class:`CCMResult`.
@@ -219,9 +254,10 @@ def estimate_ccm(
     Raises:
         ShapeError: src or dst not (..., 3), or their shapes differ.
         DTypeError: a non-float array.
-        UnknownMethodError: ``method`` not in :data:`CCM_METHODS`.
+        UnknownMethodError: ``method`` not in :data:`CCM_METHODS`, or ``gain_channel`` not in
+            :data:`GAIN_CHANNELS`.
         RangeError: a negative or NaN ``max_mse``, ``max_condition`` < 1, ``min_pairs`` < 1, a NaN
-            ``saturation``, or a negative or non-finite ``noise_std``.
+            ``saturation``, a negative or non-finite ``noise_std``, or a ``known_gain`` not > 0 and finite.
 
     Example:
         >>> rng = np.random.default_rng(0)
@@ -242,10 +278,33 @@ def estimate_ccm(
     sat = math.inf if saturation is None else _check_saturation(saturation)
     noise_std = check_number(noise_std, "noise_std", low=0.0, optional=True)
     ridge = check_number(ridge, "ridge", low=0.0)
+    known_gain, gain_channel = check_known_gain(known_gain, gain_channel)
     a = _check_ccm_input(src_raw, "src")
     b = _check_ccm_input(dst_raw, "dst")
     return ccm_from_sums(*kernels.ccm_sums(a, b, sat), method, max_mse=max_mse, min_pairs=min_pairs,
-                         max_condition=max_condition, noise_std=noise_std, ridge=float(ridge), data=(a, b, sat))
+                         max_condition=max_condition, noise_std=noise_std, ridge=float(ridge), data=(a, b, sat),
+                         known_gain=known_gain, gain_channel=gain_channel)
+
+
+def check_known_gain(known_gain: object, gain_channel: object = "green") -> tuple[float | None, str]:
+    """``(known_gain, gain_channel)`` of :func:`estimate_ccm`, checked: None or a finite number > 0,
+    and one of :data:`GAIN_CHANNELS`."""
+    check_method(gain_channel, GAIN_CHANNELS, "gain_channel")
+    if known_gain is None:
+        return None, gain_channel
+    g = float(check_number(known_gain, "known_gain", low=0.0, low_open=True))
+    if not math.isfinite(g):
+        raise RangeError(f"known_gain: expected a finite number > 0, got {g}")
+    return g, gain_channel
+
+
+def matrix_gain(matrix: np.ndarray, gain_channel: str = "green") -> float:
+    """The overall gain of a correction matrix: wᵀ·M·(1, 1, 1)ᵀ, its response to grey along
+    ``gain_channel`` (:data:`GAIN_CHANNELS`: the green channel's, or its Rec. 709 luminance). For
+    exposure × white balance, diag(e·r, e, e·b), the green gain is e."""
+    check_method(gain_channel, GAIN_CHANNELS, "gain_channel")
+    m = _check_ccm_matrix(matrix)
+    return float(_GAIN_WEIGHTS[gain_channel] @ m.sum(axis=1))
 
 
 def _check_saturation(saturation: object) -> float:
@@ -271,16 +330,19 @@ def ccm_sums(src: np.ndarray, dst: np.ndarray, saturation: float) -> tuple:
 def ccm_from_sums(
     ata: np.ndarray, atb: np.ndarray, bb: float, n: int, n_nonfinite: int, n_saturated: int, method: str, *,
     max_mse: float, min_pairs: int, max_condition: float, noise_std: float | None, ridge: float,
-    data: tuple[np.ndarray, np.ndarray, float] | None = None,
+    data: tuple[np.ndarray, np.ndarray, float] | None = None, known_gain: float | None = None,
+    gain_channel: str = "green",
 ) -> CCMResult:
     """:func:`estimate_ccm` from the normal-equation sums of its pairs (:func:`ccm_sums`, or the map's
-    fused pair pass), the arguments already checked. ``data`` = (src, dst, saturation) is needed by
-    the colour-science methods only, which fit the pairs themselves."""
+    fused pair pass), the arguments already checked (``known_gain``, ``gain_channel``:
+    :func:`check_known_gain`). ``data`` = (src, dst, saturation) is needed by the colour-science
+    methods only, which fit the pairs themselves."""
     need = max(min_pairs, _MIN_SOLVABLE_PAIRS)
     identity = np.eye(3)
+    fitted_gain = math.nan
 
     def result(matrix: np.ndarray, mse: float, reason: str, cond: float = math.nan) -> CCMResult:
-        return CCMResult(matrix, mse, n, not reason, reason, method, cond)
+        return CCMResult(matrix, mse, n, not reason, reason, method, cond, fitted_gain)
 
     sums_finite = bool(np.isfinite(ata).all() and np.isfinite(atb).all() and math.isfinite(bb))
     if n < _MIN_SOLVABLE_PAIRS or not sums_finite:
@@ -305,6 +367,13 @@ def ccm_from_sums(
             matrix = _matrix_colour_science(method, a_k, b_k)
             mse = float(np.mean((a_k @ matrix.T - b_k) ** 2))
 
+    gain_ok = True
+    if known_gain is not None and np.isfinite(matrix).all():
+        fitted_gain = float(_GAIN_WEIGHTS[gain_channel] @ matrix.sum(axis=1))
+        gain_ok = math.isfinite(fitted_gain) and fitted_gain > 0.0
+        if gain_ok:
+            matrix = matrix * (known_gain / fitted_gain)
+
     if n < need:
         reason = _too_few(n, need, n_nonfinite, n_saturated)
     elif not well_posed:
@@ -320,6 +389,8 @@ def ccm_from_sums(
         reason = "non-finite (matrix or mse)"
     elif mse > max_mse:
         reason = f"mse {mse:.3g} > {max_mse:.3g}"
+    elif not gain_ok:
+        reason = f"gain {fitted_gain:.3g} of the fit not positive ({gain_channel})"
     else:
         reason = ""
     if not np.isfinite(matrix).all():

@@ -15,7 +15,7 @@ from rgbd_envmap.envmap.map import MAX_MAP_PIXELS, ChangeLog, EnvironmentMap, Ma
 from rgbd_envmap.envmap.pairs import collect_pairs, frame_pair_sums, frame_pairs, frame_points, frame_samples
 from rgbd_envmap.envmap.rules import is_backface, rule_closer, rule_empty, rule_freed, rule_removal, rule_trusted
 from rgbd_envmap.envmap.translation import TRANSLATE_METHODS, translate
-from rgbd_envmap.envmap.map_update import SeenDepth, UpdateConfig, UpdateStats, update, view_distances
+from rgbd_envmap.envmap.map_update import SeenDepth, UpdateConfig, UpdateStats, clip_flags, update, view_distances
 
 __all__ = [
     "EnvironmentMap",
@@ -28,6 +28,7 @@ __all__ = [
     "UpdateStats",
     "update",
     "view_distances",
+    "clip_flags",
     "collect_pairs",
     "frame_points",
     "frame_pairs",

@@ -46,7 +46,7 @@ from rgbd_envmap.envmap.tables import trig_tables
 from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError
 from rgbd_envmap.types import Intrinsics, RigidTransform, check_transform
 
-__all__ = ["UpdateConfig", "SeenDepth", "UpdateStats", "update", "map_coordinates", "view_distances"]
+__all__ = ["UpdateConfig", "SeenDepth", "UpdateStats", "update", "map_coordinates", "view_distances", "clip_flags"]
 
 
 #: the largest ``UpdateConfig.max_splat_px``: a footprint of 2·256 + 1 rows already covers a quarter
@@ -162,6 +162,9 @@ class UpdateStats:
     #: pixels refused by the viewpoint rule (``view_ratio``): a same-surface sample from too far
     #: out; they are not in ``taken``.
     kept_view: int = 0
+    #: pixels refused by the HDR clip rule: a clipped sample of the surface an unclipped colour
+    #: holds (``clipped`` of :func:`update`); they are not in ``taken``.
+    kept_clipped: int = 0
 
 
 #: atan(x)/x ≈ P(x²) on [0, 1]: a degree-8 Chebyshev fit, max error of atan 1.2e-8 rad (an EM pixel
@@ -213,6 +216,7 @@ def update(
     fill_only: np.ndarray | None = None,
     seen: SeenDepth | None = None,
     *,
+    clipped: np.ndarray | None = None,
     threads: int = 2,
 ) -> UpdateStats:
     """Project (N, 3) world points with (N, 3) reference-space linear colours into ``em`` in place.
@@ -221,7 +225,12 @@ def update(
     in pixels (sets the footprint). ``fill_only`` (N,) bool marks samples the "closer" rule does not
     apply to (they still fill empty pixels and obey the trusted-sphere and removal rules; see
     :class:`rgbd_envmap.capture.CaptureConfig.edge_margin_px`). ``seen``: the frame's measured depth,
-    for free-space carving (``config.carve``; without it no pixel is freed). ``threads``: 1 or 2 (more
+    for free-space carving (``config.carve``; without it no pixel is freed). ``clipped``: (N,) bool,
+    the samples with a channel at the camera's clip level (HDR capture, docs/design/hdr.md): such a
+    sample never overwrites an unclipped colour of the same surface (counted ``kept_clipped``), over
+    a clipped colour it keeps the larger value per channel, and an unclipped sample replaces a
+    clipped colour (the map keeps per-pixel flags, :func:`clip_flags`, once any update passed
+    ``clipped``; None: no sample is clipped). ``threads``: 1 or 2 (more
     are used as 2, and 2 as 1 where numba has one thread); the map, counts and change log are the
     same bit for bit. Returns what the update did.
     The first update allocates the map's scratch: a z-buffer of 16 map rows (256 KB at 2000×1000)
@@ -249,6 +258,7 @@ def update(
     zband, tiles, rec, rec_key, listed = _update_scratch(em, len(pts))
     pts = np.ascontiguousarray(pts)
     flags = np.zeros(len(pts), bool) if fill_only is None else check_array(fill_only, "fill_only", shape=(len(pts),), dtype="bool")
+    clip_args = _clip_arrays(em, clipped, len(pts))
     log = _NO_LOG if em.change_log is None else em.change_log
     carve = bool(config.carve) and seen is not None
     cam, seen_depth = _seen_arrays(seen, config) if carve else (_NO_CAM, _NO_SEEN)
@@ -258,7 +268,7 @@ def update(
         em.radiance_planes, em.depth_m, em.valid,
         float(config.trusted_radius_m), float(config.removal_radius_m), zband, tiles, rec, rec_key, listed,
         *trig_tables(em.height, em.width), log.idx, log.old, log.was_valid, log.n, carve, cam, seen_depth,
-        *_averaging(em, config),
+        *_averaging(em, config), *clip_args,
     )
     zband2, tiles2, log2 = _second_thread_scratch(em, log.capacity)
     n_touched, counts, n_logged = parallel_call(kernels.update_kernel, *args, zband2, tiles2, log2.idx, log2.old,
@@ -280,6 +290,35 @@ def _averaging(em: EnvironmentMap, config: UpdateConfig) -> tuple[np.ndarray, np
     return counts, np.array([n, float(config.carve_tol_rel), float(config.carve_tol_abs_m), ratio], np.float64), views
 
 
+def _clip_arrays(em: EnvironmentMap, clipped: np.ndarray | None, n: int) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The kernel's (N,) uint8 sample flags, (H·W,) uint8 pixel flags and ``hdr`` switch: on when
+    ``clipped`` is given or the map already keeps flags (then a call without it has no clipped
+    sample); off: one-entry zero dummies."""
+    held = em.scratch.get("clip_flags")
+    kept = held is not None and held[0] is em.colour_counts()
+    if clipped is None and not kept:
+        return _NO_CLIPPED, _NO_CLIPPED, False
+    if clipped is None:
+        samples = np.zeros(max(n, 1), np.uint8)
+    else:
+        samples = np.ascontiguousarray(check_array(clipped, "clipped", shape=(n,), dtype="bool")).view(np.uint8)
+        samples = samples if n > 0 else np.zeros(1, np.uint8)
+    return samples, clip_flags(em).reshape(-1), True
+
+
+def clip_flags(em: EnvironmentMap) -> np.ndarray:
+    """(H, W) uint8: 1 where the pixel's colour came from a clipped sample (a lower bound of its
+    radiance; ``clipped`` of :func:`update`), 0 elsewhere. Kept with the map's colour counts, as
+    :func:`view_distances`: all 0 whenever they restart (``copy``, ``translate``, ``from_arrays``,
+    ``mark_modified``)."""
+    counts = em.colour_counts()
+    held = em.scratch.get("clip_flags")
+    if held is None or held[0] is not counts:
+        held = (counts, np.zeros((em.height, em.width), np.uint8))
+        em.scratch["clip_flags"] = held
+    return held[1]
+
+
 def view_distances(em: EnvironmentMap) -> np.ndarray:
     """(H, W) float32: per pixel, the nearest distance from the origin of the devices that saw its
     surface (``UpdateConfig.view_ratio``), inf where unknown. Kept with the map's colour counts: it
@@ -295,6 +334,7 @@ def view_distances(em: EnvironmentMap) -> np.ndarray:
 
 _NO_AVERAGED = np.zeros(1, np.uint8)
 _NO_VIEWS = np.full(1, np.inf, np.float32)
+_NO_CLIPPED = np.zeros(1, np.uint8)
 _NO_CAM = np.zeros(23)
 _NO_SEEN = np.zeros((1, 1), np.float32)
 

@@ -181,7 +181,7 @@ def _check_index_range(intr: Intrinsics, name: str, channels: int = 1) -> None:
         raise InvalidInputError(f"{name}: expected fewer than 2³¹ pixel values, got {intr.width}×{intr.height}×{channels}")
 
 
-_FRAME_FIELDS = ("rgb", "depth_m", "known", "T_world_from_cam", "intrinsics", "timestamp_ns")
+_FRAME_FIELDS = ("rgb", "depth_m", "known", "T_world_from_cam", "intrinsics", "timestamp_ns", "clipped")
 
 
 _NO_CONFIG = object()
@@ -209,7 +209,7 @@ def _owned_frame(rgb: np.ndarray, depth_m: np.ndarray, known: np.ndarray, T_worl
             and known.shape == (h, w) and known.dtype == np.bool_):  # never: the kernels allocate these
         return RGBDFrame(rgb, depth_m, known, T_world_from_cam, intrinsics, timestamp_ns)
     frame = object.__new__(RGBDFrame)
-    for name, value in zip(_FRAME_FIELDS, (rgb, depth_m, known, T_world_from_cam, intrinsics, int(timestamp_ns))):
+    for name, value in zip(_FRAME_FIELDS, (rgb, depth_m, known, T_world_from_cam, intrinsics, int(timestamp_ns), None)):
         if isinstance(value, np.ndarray):
             value.setflags(write=False)
         object.__setattr__(frame, name, value)

@@ -151,7 +151,7 @@ class EnvironmentCapture:
         self.has_reference = False
 
     def process(self, raw: RGBDFrame, reliable: np.ndarray, filled: RGBDFrame, *, across_edges: np.ndarray | None = None,
-                timer: StageTimer | None = None) -> CaptureStep:
+                timer: StageTimer | None = None, matrix: np.ndarray | None = None) -> CaptureStep:
         """Process one ingested frame: ``raw`` (before hole filling) with its ``reliable`` mask, and
         ``filled`` (after hole filling), both in the current camera's colour space. ``timer`` records
         the stages "Collect paired samples", "Compute colour correction matrix" (the fit and its MSE)
@@ -173,6 +173,9 @@ class EnvironmentCapture:
             self.has_reference = True
             stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t, across_edges)
             return CaptureStep(ts, True, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
+        if matrix is not None and not cfg.freeze:  # a known correction (a bracketed frame): no fit, no gate
+            stats = self._timed_project(raw, filled, np.asarray(matrix, np.float64), t, across_edges)
+            return CaptureStep(ts, False, None, True, "", 0, self.matrix.copy(), stats)
         if not cfg.colour_correction:
             stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t, across_edges)
             return CaptureStep(ts, False, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
@@ -241,5 +244,6 @@ class EnvironmentCapture:
                                                 near_edge, matrix)
         focal = frame.intrinsics.focal_px  # 0.5 (|fx| + |fy|): focal lengths are signed (ICL-NUIM's fy < 0)
         seen = SeenDepth(raw.depth_m, raw.known, raw.intrinsics, raw.T_world_from_cam)  # measured only
+        clipped = None if frame.clipped is None else frame.clipped[mask]  # HDR clip flags, in the samples' order
         return update(self.em, pts, colours, frame.T_world_from_cam.translation, focal, self.config.update,
-                      None if near_edge is None else fill_only, seen, threads=self.threads)
+                      None if near_edge is None else fill_only, seen, clipped=clipped, threads=self.threads)

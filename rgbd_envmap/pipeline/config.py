@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 from rgbd_envmap.assets import OBJECT_NAMES
 from rgbd_envmap.checks import check_flag, check_instance, check_method, check_number, check_positive_int
+from rgbd_envmap.colour.hdr import HDRConfig
 from rgbd_envmap.envmap.translation import TRANSLATE_METHODS
 from rgbd_envmap.envmap_io import CONVENTIONS
 from rgbd_envmap.errors import InvalidInputError
@@ -20,6 +21,7 @@ from rgbd_envmap.ingest.kinect import KinectMergeConfig
 from rgbd_envmap.ingest.tango import TangoIngestConfig
 from rgbd_envmap.pipeline.capture import CaptureConfig
 from rgbd_envmap.prt import MAX_PRT_DIRS
+from rgbd_envmap.render.composite import COMPOSITE_MODES
 from rgbd_envmap.render.raster import BACKENDS
 from rgbd_envmap.sh import check_bands
 
@@ -89,11 +91,33 @@ class RenderConfig:
     #: "numba" (own rasteriser) or "pyrender" (the reference, OpenGL through EGL): docs/design/render.md.
     backend: str = "numba"
     shadow_grey: float = 0.15
+    #: "differential" (lights + SH with shadow rays onto the real geometry from the map's depth, papers
+    #: 000 / 001; docs/design/differential.md; the default: lower composite error on the lit office's
+    #: reference frames) or "paper003" (PRT-shaded object + shadow plane alpha, paper 003 §7).
+    composite: str = "differential"
+    #: differential: lights asked of the Q2-Tree sampler on the map's direct part (12 + 3k ≥ n given).
+    lights: int = 12
+    #: differential: the fraction τ of the map's energy given to the lights (paper 000 §4.2), the rest to SH.
+    tau: float = 0.5
+    #: differential: the real geometry: map points within this distance of the object's centre, one per
+    #: cube of side ``receiver_spacing_m``; rebuilt every ``geometry_every`` relights.
+    receiver_radius_m: float = 0.4
+    receiver_spacing_m: float = 0.008
+    geometry_every: int = 10
+    #: differential: rays per receiver vertex into the object's bounding cone (its SH occlusion).
+    occlusion_samples: int = 32
 
     def __post_init__(self) -> None:
         check_flag(self.enabled, "render.enabled")
         check_method(self.backend, BACKENDS, "render.backend")
         check_number(self.shadow_grey, "render.shadow_grey", low=0.0, high=1.0)
+        check_method(self.composite, COMPOSITE_MODES, "render.composite")
+        check_number(self.lights, "render.lights", low=1, high=10_000, integer=True)
+        check_number(self.tau, "render.tau", low=0.0, high=1.0)
+        check_number(self.receiver_radius_m, "render.receiver_radius_m", low=0.0, low_open=True, high=10.0)
+        check_number(self.receiver_spacing_m, "render.receiver_spacing_m", low=1e-4, high=1.0)
+        check_number(self.geometry_every, "render.geometry_every", low=1, high=1_000_000, integer=True)
+        check_number(self.occlusion_samples, "render.occlusion_samples", low=1, high=4096, integer=True)
 
 
 @dataclass(frozen=True)
@@ -105,7 +129,21 @@ class PoseCheckConfig:
     jump until ``jump_hold_s`` after it: which side of a jump is right is unknown, and a wrong pose
     that snaps back within the hold never reaches the map (a jump that stays is accepted after it).
     A depth pose bit for bit equal to the previous depth packet's is a frozen tracker
-    (``skip_frozen``). The slacks cover tracking noise of about a centimetre and a degree."""
+    (``skip_frozen``). The slacks cover tracking noise of about a centimetre and a degree.
+
+    **The map check** (``map_check``) catches an offset that outlasts the hold. After a jump, each
+    depth packet's points (``map_check_points`` of them) are placed twice, by the reported pose and
+    with the jump undone (the device's motion before the jump, continued), and compared with the
+    map's distance in their directions (:mod:`rgbd_envmap.pipeline.consistency`); a point agrees
+    within ``map_tol_m`` + ``map_tol_rel`` × its distance from the origin (with at least
+    ``map_min_compared`` points on valid map pixels). Once the undone pose agrees on ``map_margin``
+    × the probed points more than the reported one, that packet and every one up to the next jump
+    (the snap back) are skipped (``depth_inconsistent_with_map``). When the reported pose agrees
+    better by that margin, the jump was real and the check ends; until either happens, packets are
+    skipped too (a pose stays suspect until the map vouches for it). ``map_accept_after_s`` after the jump
+    the check ends anyway: a relocalisation that lasts is taken as the truth and the map as what
+    is wrong (None: never). Without a detected jump nothing is checked, so a fault-free session is
+    unchanged. docs/design/faults.md gives the measured figures."""
 
     enabled: bool = True
     max_speed_m_s: float = 2.0
@@ -114,14 +152,28 @@ class PoseCheckConfig:
     slack_deg: float = 3.0
     jump_hold_s: float = 1.0
     skip_frozen: bool = True
+    map_check: bool = True
+    map_check_points: int = 2000
+    map_tol_m: float = 0.02
+    map_tol_rel: float = 0.02
+    map_min_compared: int = 200
+    map_margin: float = 0.1
+    map_accept_after_s: float | None = 10.0
 
     def __post_init__(self) -> None:
         check_flag(self.enabled, "pose_check.enabled")
         check_flag(self.skip_frozen, "pose_check.skip_frozen")
+        check_flag(self.map_check, "pose_check.map_check")
         for name in ("max_speed_m_s", "max_turn_deg_s"):
             check_number(getattr(self, name), f"pose_check.{name}", low=0.0, low_open=True)
         for name in ("slack_m", "slack_deg", "jump_hold_s"):
             check_number(getattr(self, name), f"pose_check.{name}", low=0.0)
+        check_number(self.map_check_points, "pose_check.map_check_points", low=1, high=1_000_000, integer=True)
+        check_number(self.map_tol_m, "pose_check.map_tol_m", low=0.0, high=10.0)
+        check_number(self.map_tol_rel, "pose_check.map_tol_rel", low=0.0, high=1.0)
+        check_number(self.map_min_compared, "pose_check.map_min_compared", low=1, high=1_000_000, integer=True)
+        check_number(self.map_margin, "pose_check.map_margin", low=0.0, high=1.0)
+        check_number(self.map_accept_after_s, "pose_check.map_accept_after_s", low=0.0, optional=True)
 
 
 @dataclass(frozen=True)
@@ -133,6 +185,9 @@ class PipelineConfig:
     #: the Kinect path's warp + merge (sensor "kinect": registered depth + colour images).
     kinect: KinectMergeConfig = field(default_factory=KinectMergeConfig)
     capture: CaptureConfig = field(default_factory=CaptureConfig)
+    #: HDR capture (ours): frames brought to the reference exposure, clipped colours kept as lower
+    #: bounds in the map, bracketed frames fused into the map and not composited (docs/design/hdr.md).
+    hdr: HDRConfig = field(default_factory=HDRConfig)
     shading: ShadingConfig = field(default_factory=ShadingConfig)
     object: ObjectConfig = field(default_factory=ObjectConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -143,6 +198,11 @@ class PipelineConfig:
     threads: int = 2
     #: a depth packet pairs with the colour frame nearest in time, if within this lag.
     max_colour_lag_ms: float = 20.0
+    #: ... and when that frame never comes (lost, frozen), with the nearest usable frame on either
+    #: side within this lag (50: the neighbours one colour period away, with jitter; ours). The
+    #: depth packet's own pose places its points, so the other frame's colours still register.
+    #: None: such a depth packet is dropped (``depth_no_colour``).
+    colour_fallback_lag_ms: float | None = 50.0
     #: Kinect path: warp + merge run on every frame (30 Hz); correction, the EM update and SH run on
     #: every n-th merged frame (6: 5 Hz, the Tango's depth rate) ...
     kinect_em_every: int = 6
@@ -153,7 +213,7 @@ class PipelineConfig:
     pose_check: PoseCheckConfig = field(default_factory=PoseCheckConfig)
 
     def __post_init__(self) -> None:
-        sections = (("ingest", TangoIngestConfig), ("kinect", KinectMergeConfig), ("capture", CaptureConfig),
+        sections = (("ingest", TangoIngestConfig), ("kinect", KinectMergeConfig), ("capture", CaptureConfig), ("hdr", HDRConfig),
                     ("shading", ShadingConfig), ("object", ObjectConfig), ("render", RenderConfig),
                     ("pose_check", PoseCheckConfig))
         for name, cls in sections:  # a dict or a wrong section fails here, not deep in a stage
@@ -161,5 +221,6 @@ class PipelineConfig:
         check_method(self.translation_method, TRANSLATE_METHODS, "translation_method")
         check_positive_int(self.threads, "PipelineConfig.threads")
         check_number(self.max_colour_lag_ms, "max_colour_lag_ms", low=0.0)
+        check_number(self.colour_fallback_lag_ms, "colour_fallback_lag_ms", low=0.0, high=1000.0, optional=True)
         check_positive_int(self.kinect_em_every, "kinect_em_every")
         check_positive_int(self.kinect_em_stride, "kinect_em_stride")

@@ -53,7 +53,7 @@ import numpy as np
 
 from rgbd_envmap import sh
 from rgbd_envmap.checks import check_array, check_instance
-from rgbd_envmap.colour import decode_nv21
+from rgbd_envmap.colour import clipped_pixels, decode_nv21, exposure_scale, hdr_frame
 from rgbd_envmap.envmap.map import EnvironmentMap
 from rgbd_envmap.envmap.translation import translate
 from rgbd_envmap.errors import InvalidInputError
@@ -61,8 +61,9 @@ from rgbd_envmap.ingest.kinect import KinectMerger, kinect_rgbd_frame
 from rgbd_envmap.ingest.tango import colour_filled, registration_matrix, rgbd_frame_from_packets
 from rgbd_envmap.pipeline.capture import CaptureStep, EnvironmentCapture
 from rgbd_envmap.pipeline.config import PipelineConfig
+from rgbd_envmap.pipeline.consistency import MapConsistency, extrapolated_pose, map_consistency
 from rgbd_envmap.timing import StageTimer
-from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, RGBDFrame
+from rgbd_envmap.types import Calibration, ColourPacket, DepthPacket, RGBDFrame, RigidTransform
 
 __all__ = ["DepthStep", "ColourStep", "Pipeline", "STAGES", "DEPTH_TOTAL", "COLOUR_TOTAL", "PAPER_TABLE1_MS", "SKIP_REASONS"]
 
@@ -76,19 +77,24 @@ SKIP_REASONS = {
     "depth_pose_jump": "a depth packet within pose_check.jump_hold_s of a jump of the reported pose (faster than a hand moves)",
     "depth_pose_frozen": "a depth pose bit for bit equal to the previous depth packet's (a frozen tracker)",
     "colour_frozen_frame": "a colour frame repeating the previous image: shown without the object, not paired",
-    "depth_no_colour": "a depth packet with no colour frame within max_colour_lag_ms",
+    "depth_no_colour": "a depth packet with no colour frame within max_colour_lag_ms (nor colour_fallback_lag_ms)",
+    "depth_inconsistent_with_map": "a depth packet whose points, placed by its pose, miss the map's surfaces "
+                                   "(pose_check.map_min_consistent: a relocalisation error)",
 }
 
 #: stage names, in pipeline order, and the paper's Table 1 figure for each (None: no counterpart).
 STAGES = (
     "Warp + merge depth (Kinect)", "Depth image to RGB-D",
-    "YUV420 to linear RGB", "Point cloud to RGB-D", "Denoise depth", "Mark reliable RGB-D", "Hole filling RGB-D",
-    "Collect paired samples", "Compute colour correction matrix", "Calculate MSE", "Project sample to EM*",
-    "EM translation", "Calculate SH coefficients*", "Select SH bands", "Shade object (PRT)",
-    "Decode colour frame", "Rasterise", "Composite",
+    "YUV420 to linear RGB", "Point cloud to RGB-D", "Denoise depth", "Mark reliable RGB-D", "HDR exposure + clip flags",
+    "Hole filling RGB-D", "Collect paired samples", "Compute colour correction matrix", "Calculate MSE", "Project sample to EM*",
+    "EM translation", "Calculate SH coefficients*", "Select SH bands", "Lights from the map", "Receiver geometry",
+    "Shade object (PRT)", "Decode colour frame", "Rasterise", "Composite",
 )
 DEPTH_TOTAL = "depth_frame_total"
 COLOUR_TOTAL = "colour_frame_total"
+#: the differential composite's lights and direct / indirect split work on every LIGHT_MAP_STRIDE-th map
+#: row and column.
+LIGHT_MAP_STRIDE = 4
 #: stages that are not part of a depth frame's total (they belong to rendering a colour frame).
 RENDER_STAGES = ("Decode colour frame", "Rasterise", "Composite")
 #: a colour frame's total: everything it does to be shown (decode, shade when due, rasterise, composite).
@@ -112,6 +118,9 @@ class DepthStep:
             filling ((H, W) in the depth sensor's grid), for error measurement.
         sh_updated: the SH coefficients were recomputed.
         bands: SH bands in use after this packet.
+        exposure_scale: the factor the frame's colours were multiplied by before correction (HDR
+            capture: a bracketed frame brought to the exposure of the live frame whose correction
+            matrix is in force; 1 otherwise).
     """
 
     timestamp_ns: int
@@ -123,6 +132,7 @@ class DepthStep:
     filled_known: np.ndarray
     sh_updated: bool
     bands: int
+    exposure_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -187,8 +197,19 @@ class Pipeline:
         self.object_offset = np.zeros(3)
         self._translated: EnvironmentMap | None = None  # the last translated view, overwritten by the next
         self._pending_depth: DepthPacket | None = None
+        # The usable colour frame nearest the pending depth packet among those that came before
+        # it (a fallback partner when its own frame never comes: ``colour_fallback_lag_ms``).
+        self._pending_partner: tuple[ColourPacket, np.ndarray] | None = None
+        #: depth packets paired with a colour frame beyond ``max_colour_lag_ms`` (within
+        #: ``colour_fallback_lag_ms``) because their own frame was lost or frozen.
+        self.late_pairs = 0
         self._decode_ms = 0.0
         self._last_colour: tuple[ColourPacket, np.ndarray] | None = None
+        #: bracketed colour frames (HDR capture): paired with depth for the map, not composited.
+        self.bracketed_frames = 0
+        self._bracket_known = False
+        # exposure time × ISO of the live frame whose correction matrix is in force (HDR capture)
+        self._matrix_exposure: float | None = None
         self.depth_steps = 0
         self.dropped_depth = 0
         #: {reason: packets skipped} (reasons: :data:`SKIP_REASONS`; only those that occurred).
@@ -198,6 +219,15 @@ class Pipeline:
         self._last_depth_pose: np.ndarray | None = None
         self._jumped = False
         self._jump_ns: int | None = None  # the last jump's timestamp
+        self._pose_before: tuple[int, np.ndarray] | None = None  # the packet pose before _last_pose (other time)
+        # (4, 4) world-side transform that undoes the last jump (from the motion before it), while
+        # the map check still tests it; None: no jump under test.
+        self._correction: np.ndarray | None = None
+        self._offset_confirmed = False  # the map check found the jump to be the tracker's error
+        #: the map check of the last depth packet paired: (as reported, with the jump undone), or None.
+        self.map_consistency: tuple[MapConsistency, MapConsistency] | None = None
+        #: depth packets the map check found inconsistent but let in (``pose_check.map_accept_after_s``).
+        self.map_check_accepted = 0
         self._prev_nv21: np.ndarray | None = None
         self._colour_from_depth = calibration.T_colour_from_depth.inverse().matrix
         self._renderer = None
@@ -209,6 +239,14 @@ class Pipeline:
         self._shade_out: np.ndarray | None = None
         self._gram = None
         self.plane_alpha: np.ndarray | None = None
+        # differential composite (render.composite = "differential"): lights, indirect SH, shader
+        self.lights = None
+        self.coeffs_indirect: np.ndarray | None = None
+        self.receiver_ratio: np.ndarray | None = None
+        self._diff_shader = None
+        self._diff_base: np.ndarray | None = None
+        self._receiver_faces = np.zeros((0, 3), np.int32)
+        self._relights_since_geometry = 0
         if config.render.enabled or config.shading.auto_bands:
             self._load_object()
         if lighting is None and config.shading.lighting_file is not None:
@@ -294,6 +332,9 @@ class Pipeline:
         """Flags a jump of the device's reported pose since the previous packet's (see PoseCheckConfig)."""
         pc = self.config.pose_check
         last, self._last_pose = self._last_pose, (timestamp_ns, T_world_from_colour)
+        before = self._pose_before
+        if last is not None and last[0] != timestamp_ns:
+            self._pose_before = last
         if last is None or not pc.enabled:
             return
         dt = abs(timestamp_ns - last[0]) * 1e-9
@@ -304,6 +345,11 @@ class Pipeline:
         if math.sqrt(step @ step) > pc.max_speed_m_s * dt + pc.slack_m or turn > pc.max_turn_deg_s * dt + pc.slack_deg:
             self._jumped = True
             self._jump_ns = timestamp_ns
+            if pc.map_check:  # where the device would be without the jump: the motion before it, continued
+                dt_prev = 0 if before is None else last[0] - before[0]
+                predicted = last[1] if dt_prev <= 0 else extrapolated_pose(before[1], last[1], (timestamp_ns - last[0]) / dt_prev)
+                self._correction = predicted @ np.linalg.inv(T_world_from_colour)
+                self._offset_confirmed = False
 
     def _usable_depth(self, packet: DepthPacket) -> bool:
         """Checks of a depth packet on arrival (order, points, pose); False: skipped and counted."""
@@ -331,6 +377,51 @@ class Pipeline:
         self._skip("depth_pose_jump")
         return True
 
+    def _inconsistent_with_map(self, depth: DepthPacket) -> bool:
+        """The map check (``pose_check.map_check``), after a pose jump: a subsample of the packet's
+        points against the map's distances in their directions
+        (:func:`~rgbd_envmap.pipeline.consistency.map_consistency`), placed once by the reported pose
+        and once with the jump undone (the motion before the jump, continued). When the undone pose
+        agrees with the map on ``map_margin`` × the probed points more than the reported one, the
+        jump is the tracker's error: this packet and every one up to the next jump (the snap back)
+        are skipped and counted, without further tests (an offset packet let in would make the map
+        agree with the offset). When the reported pose agrees better by that margin, the jump was
+        real (e.g. a frozen tracker catching up) and the check ends. Without a verdict (fewer than
+        ``map_min_compared`` points on the map, as where the device first sees a part of the room,
+        or neither pose ahead by the margin) the packet is skipped too, and the next one tested:
+        a reported pose stays suspect until the map vouches for it.
+        ``map_accept_after_s`` after the jump the check ends either way, and the offset is taken as
+        the truth."""
+        pc = self.config.pose_check
+        self.map_consistency = None
+        C = self._correction
+        if C is None or not (pc.enabled and pc.map_check) or not self.capture.has_reference or not len(depth.points_m):
+            return False
+        accept = pc.map_accept_after_s
+        if accept is not None and self._jump_ns is not None and depth.timestamp_ns - self._jump_ns >= accept * 1e9:
+            self._correction = None  # a relocalisation that lasts: the map is what is wrong
+            self.map_check_accepted += 1
+            return False
+        if self._offset_confirmed:
+            self._skip("depth_inconsistent_with_map")
+            return True
+        step = max(1, len(depth.points_m) // pc.map_check_points)
+        T = depth.T_world_from_depth
+        undone = RigidTransform(C @ T.matrix, T.dst, T.src)
+        rep, cor = (map_consistency(self.capture.em, depth.points_m, pose, step=step, tol_m=pc.map_tol_m, tol_rel=pc.map_tol_rel)
+                    for pose in (T, undone))
+        self.map_consistency = (rep, cor)
+        margin = pc.map_margin * rep.sampled
+        judged = max(rep.compared, cor.compared) >= pc.map_min_compared
+        if judged and rep.consistent - cor.consistent > margin:
+            self._correction = None  # the reported pose is the right one
+            return False
+        # The undone pose fits better (the offset is confirmed), or no verdict yet (too little of the
+        # map in view, or the offset does not show against it): the reported pose stays suspect.
+        self._offset_confirmed = judged and cor.consistent - rep.consistent > margin
+        self._skip("depth_inconsistent_with_map")
+        return True
+
     def _frozen_frame(self, nv21: np.ndarray) -> bool:
         prev, self._prev_nv21 = self._prev_nv21, nv21
         if prev is None or prev.shape != nv21.shape:
@@ -349,15 +440,13 @@ class Pipeline:
         if isinstance(packet, DepthPacket):
             if not self._usable_depth(packet):
                 return out
-            if self._pending_depth is not None:
-                self._drop_pending()
-            self._pending_depth = packet
+            if self._pending_depth is not None:  # its colour frame never came: the nearest earlier one, or dropped
+                self._resolve_pending(None, out)
             last = self._last_colour
             if last is not None and abs(last[0].timestamp_ns - packet.timestamp_ns) <= lag_ns:
-                self._pending_depth = None
-                if not self._pose_jumped(packet.timestamp_ns):
-                    self.timer.begin("depth")
-                    out.append(self._depth_step(packet, last[0], last[1]))
+                self._pair(packet, last, out)
+            else:
+                self._pending_depth, self._pending_partner = packet, last
             return out
         if not self._in_order("colour", packet.timestamp_ns):
             return out
@@ -372,28 +461,63 @@ class Pipeline:
             out.append(ColourStep(packet.timestamp_ns, None, srgb8))
             return out
         self._last_colour = (packet, srgb8)
+        bracket = packet.bracketed and self.config.hdr.enabled
         pending = self._pending_depth
         if pending is not None:
-            if abs(packet.timestamp_ns - pending.timestamp_ns) <= lag_ns:
-                self._pending_depth = None
-                if not self._pose_jumped(pending.timestamp_ns):
-                    self.timer.begin("depth")
-                    out.append(self._depth_step(pending, packet, srgb8))
-                    self.timer.resume(colour_frame, "colour")
-            elif packet.timestamp_ns - pending.timestamp_ns > lag_ns:
-                self._drop_pending()
+            ahead = packet.timestamp_ns - pending.timestamp_ns
+            if abs(ahead) <= lag_ns:
+                self._pending_depth = self._pending_partner = None
+                self._pair(pending, (packet, srgb8), out, resume=colour_frame)
+            elif ahead > lag_ns:  # the stream has passed the depth packet: the nearer of this and the one before
+                self._resolve_pending((packet, srgb8), out, resume=colour_frame)
+            elif self._pending_partner is None or -ahead < abs(self._pending_partner[0].timestamp_ns - pending.timestamp_ns):
+                self._pending_partner = (packet, srgb8)  # an earlier frame delivered late
+        if bracket:  # HDR capture: an exposure bracket's frame goes into the map only, never on screen
+            self.bracketed_frames += 1
+            return out
         out.append(self._colour_step(packet, srgb8))
         return out
 
-    def _drop_pending(self) -> None:
-        self.dropped_depth += 1
-        self._skip("depth_no_colour")
-        self._pending_depth = None
+    def _pair(self, depth: DepthPacket, colour: tuple[ColourPacket, np.ndarray], out: list,
+              resume: int | None = None) -> None:
+        """Run the depth step of ``depth`` with ``colour`` (packet, decoded sRGB) unless a pose jump
+        holds it; ``resume``: the colour frame whose timing record continues afterwards."""
+        if self._pose_jumped(depth.timestamp_ns) or self._inconsistent_with_map(depth):
+            return
+        self.timer.begin("depth")
+        out.append(self._depth_step(depth, colour[0], colour[1]))
+        if resume is not None:
+            self.timer.resume(resume, "colour")
 
-    def finish(self) -> None:
-        """End of stream: a depth packet still waiting for its colour frame is dropped (counted)."""
+    def _resolve_pending(self, after: tuple[ColourPacket, np.ndarray] | None, out: list,
+                         resume: int | None = None) -> None:
+        """The pending depth packet's own colour frame will not come (lost, frozen or too late): it
+        pairs with the nearer of the usable frame before it and ``after`` (the first one past the
+        lag) if within ``colour_fallback_lag_ms``, else it is dropped and counted."""
+        depth, self._pending_depth = self._pending_depth, None
+        before, self._pending_partner = self._pending_partner, None
+        fallback = self.config.colour_fallback_lag_ms
+        best = None
+        if fallback is not None:
+            for c in (before, after):
+                gap = None if c is None else abs(c[0].timestamp_ns - depth.timestamp_ns)
+                if gap is not None and gap <= fallback * 1e6 and (best is None or gap < best[0]):
+                    best = (gap, c)
+        if best is None:
+            self.dropped_depth += 1
+            self._skip("depth_no_colour")
+            return
+        self.late_pairs += 1
+        self._pair(depth, best[1], out, resume)
+
+    def finish(self) -> list[DepthStep]:
+        """End of stream: a depth packet still waiting for its colour frame pairs with the nearest
+        earlier one within ``colour_fallback_lag_ms``, or is dropped (counted). Returns the depth
+        step it made, if any."""
+        out: list[DepthStep] = []
         if self._pending_depth is not None:
-            self._drop_pending()
+            self._resolve_pending(None, out)
+        return out
 
     def feed_rgbd(self, timestamp_ns: int, rgb_srgb8: np.ndarray, depth_m: np.ndarray, known: np.ndarray,
                   T_world_from_cam) -> list[DepthStep | ColourStep]:
@@ -448,8 +572,15 @@ class Pipeline:
             with t.stage("Denoise depth"):
                 frame = denoise_frame(frame, half_window=cfg.ingest.denoise_half_window,
                                       tol_rel=cfg.ingest.denoise_tol_rel, min_inliers=cfg.ingest.denoise_min_inliers)
-        with t.stage("Mark reliable RGB-D"):
-            reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=cfg.ingest.reliability_method)
+        bracket = cfg.hdr.enabled and colour.bracketed
+        with t.stage("Mark reliable RGB-D"):  # on the sensor's values: the exposure rule is about them
+            dark = {"dark": cfg.hdr.bracket_dark} if bracket else {}
+            reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=cfg.ingest.reliability_method, **dark)
+        decoded, scale = frame, 1.0
+        if cfg.hdr.enabled:  # HDR capture (docs/design/hdr.md): clip flags; a bracket frame at the live exposure
+            with t.stage("HDR exposure + clip flags"):
+                scale = exposure_scale(self._matrix_exposure, colour.exposure) if bracket else 1.0
+                frame = hdr_frame(decoded, scale, self._low_confidence(decoded.rgb, bracket))
         across = None
         if cfg.ingest.fill_method is None:
             filled = frame
@@ -457,9 +588,28 @@ class Pipeline:
             with t.stage("Hole filling RGB-D"):
                 d, k, across = cfg.ingest.fill(frame.depth_m, frame.known)
                 m_cd = registration_matrix(depth, colour.T_world_from_colour, cal, cfg.ingest.registration)
-                filled = colour_filled(frame, d, k, srgb8, m_cd, cal.colour)
+                filled = colour_filled(decoded, d, k, srgb8, m_cd, cal.colour)
+            if cfg.hdr.enabled:
+                with t.stage("HDR exposure + clip flags"):
+                    filled = hdr_frame(filled, scale, self._low_confidence(filled.rgb, bracket))
+        live_matrix = self.capture.matrix
+        self._bracket_known = bracket and self.capture.has_reference
         out = self._capture_and_relight(frame, filled, reliable=reliable, across_edges=across)
-        return replace(out, timestamp_ns=depth.timestamp_ns, colour_timestamp_ns=colour.timestamp_ns)
+        self._bracket_known = False
+        if bracket:  # a bracket frame's fit does not steer the live frames' correction (nor their composites)
+            self.capture.matrix = live_matrix
+        elif out.capture.reference or (out.capture.ccm is not None and out.capture.ccm.accepted):
+            self._matrix_exposure = colour.exposure  # the exposure the matrix in force was fitted at
+        return replace(out, timestamp_ns=depth.timestamp_ns, colour_timestamp_ns=colour.timestamp_ns, exposure_scale=scale)
+
+    def _low_confidence(self, rgb: np.ndarray, bracket: bool) -> np.ndarray:
+        """HDR capture's flags (docs/design/hdr.md): pixels with a clipped channel and, in a bracket
+        frame, those darker than ``hdr.bracket_dark`` in every channel (the live frames measure them
+        better); the map never lets such a sample overwrite an unflagged colour of its surface."""
+        flags = clipped_pixels(rgb, self.config.hdr.clip_level)
+        if bracket:
+            flags |= ~(rgb >= np.float32(self.config.hdr.bracket_dark)).any(axis=-1)
+        return flags
 
     def _capture_and_relight(self, frame: RGBDFrame, filled: RGBDFrame, *, reliable: np.ndarray | None = None,
                              depth_m: np.ndarray | None = None, known: np.ndarray | None = None,
@@ -473,7 +623,8 @@ class Pipeline:
         if reliable is None:
             with t.stage("Mark reliable RGB-D"):
                 reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=self.config.ingest.reliability_method)
-        step = self.capture.process(frame, reliable, filled, across_edges=across_edges, timer=t)
+        fixed = {"matrix": self.capture.matrix} if self._bracket_known else {}
+        step = self.capture.process(frame, reliable, filled, across_edges=across_edges, timer=t, **fixed)
         sh_updated = False
         if not self.fixed_lighting and (step.projected or not self.has_lighting):
             if self.capture.em.valid.any():
@@ -503,7 +654,52 @@ class Pipeline:
             return
         with self.timer.stage("Calculate SH coefficients*"):
             self.coeffs = self._projection.coefficients(em)
+        if self._differential:
+            with self.timer.stage("Lights from the map"):
+                self._split_lighting(em)
         self._use_coefficients(self.timer)
+
+    @property
+    def _differential(self) -> bool:
+        """The differential composite runs: asked for, with the captured map (its depth) and an object."""
+        rc = self.config.render
+        return rc.enabled and rc.composite == "differential" and not self.fixed_lighting and self._object is not None
+
+    def _split_lighting(self, em: EnvironmentMap) -> None:
+        """The map's direct part as lights with positions, the indirect rest as SH (paper 000 §4.2):
+        ``self.lights`` and ``self.coeffs_indirect`` = the coefficients minus the direct pixels' own."""
+        from rgbd_envmap.geometry import equirect_directions, equirect_solid_angles
+        from rgbd_envmap.lights import sample_lights, split_direct_indirect
+
+        rc = self.config.render
+        # On every LIGHT_MAP_STRIDE-th row and column (a 16th of the pixels: the split's histogram and the
+        # sampler cost about that much less; a lamp spans tens of pixels). Radiance clamped at 0 (the
+        # correction matrix can leave tiny negative values).
+        k = LIGHT_MAP_STRIDE
+        sub = (slice(k // 2, None, k), slice(k // 2, None, k))
+        radiance = np.maximum(em.radiance[sub], 0.0)
+        valid = np.ascontiguousarray(em.valid[sub])
+        H, W = valid.shape
+        split = split_direct_indirect(radiance, rc.tau, valid=valid)
+        ind = self.coeffs.copy()
+        self.lights = None
+        if split.direct.any():
+            rows, cols = np.nonzero(split.direct)
+            dirs = equirect_directions(H, W)[rows, cols]
+            omega = equirect_solid_angles(H, W)[rows, cols]
+            rad = radiance[rows, cols].astype(np.float64) * omega[:, None]
+            ind -= sh.basis(dirs, self.sh_bands_computed).T @ rad
+            self.lights = sample_lights(radiance, rc.lights, "q2tree", valid=split.direct,
+                                        depth_m=np.ascontiguousarray(em.depth_m[sub]), origin=em.origin)
+            keep = self.lights.power.max(axis=1) > 0
+            if not keep.all():
+                from rgbd_envmap.lights import LightSet
+
+                L = self.lights
+                self.lights = LightSet(L.directions[keep], L.power[keep], L.method,
+                                       positions=None if L.positions is None else L.positions[keep],
+                                       origin=L.origin)
+        self.coeffs_indirect = ind
 
     def _use_coefficients(self, timer: StageTimer) -> None:
         """Band choice and shading of the object from ``self.coeffs``."""
@@ -528,6 +724,39 @@ class Pipeline:
             self._shade_out, out = self.colours, self._shade_out
             self.colours = prt.shade(self._transfer[:, :n], self.coeffs[:n], self._object.albedo, out=out)
             self.plane_alpha = prt.shadow_alpha(self._plane, self.coeffs[:n])
+        if self._differential and self.coeffs_indirect is not None:
+            self._shade_differential(timer, n)
+
+    def _shade_differential(self, timer: StageTimer, n: int) -> None:
+        """The object's radiance from lights (self-shadowed) + indirect PRT, and the receivers' ratio
+        E_with / E_without (rgbd_envmap.render.differential); the receiver mesh is rebuilt from the map's
+        depth every ``render.geometry_every`` relights."""
+        from rgbd_envmap.render.differential import DifferentialShader
+        from rgbd_envmap.render.geometry import merge_receivers, receiver_mesh, support_plane
+
+        rc = self.config.render
+        base = self.object_base
+        if self._diff_shader is None or not np.array_equal(base, self._diff_base):
+            self._diff_shader = DifferentialShader(self._object.vertices.astype(np.float64) + base, self._object.faces,
+                                                   self._object.normals, samples=rc.occlusion_samples)
+            self._diff_base = base.copy()
+            self._relights_since_geometry = rc.geometry_every
+        shader = self._diff_shader
+        if self._relights_since_geometry >= rc.geometry_every:
+            with timer.stage("Receiver geometry"):
+                em = self._lighting_map()
+                mesh = receiver_mesh(em.depth_m, em.valid, em.origin, shader.occluder.centre, rc.receiver_radius_m,
+                                     spacing_m=rc.receiver_spacing_m)
+                # the plane through the object's base where the map has no surface (2 spacings away)
+                plane = support_plane(base, rc.receiver_radius_m, rc.receiver_spacing_m)
+                mesh = merge_receivers(mesh, plane, 2 * rc.receiver_spacing_m)
+                shader.set_receivers(mesh, self.sh_bands_computed)
+            self._relights_since_geometry = 0
+        self._relights_since_geometry += 1
+        with timer.stage("Shade object (PRT)"):
+            self.colours, self.receiver_ratio = shader.shade(self.lights, self.coeffs_indirect[:n], self._transfer,
+                                                             self._object.albedo)
+            self._receiver_faces = shader.active_faces(self.receiver_ratio)
 
     def _colour_step(self, packet: ColourPacket, srgb8: np.ndarray) -> ColourStep:
         return self._render(packet.timestamp_ns, packet.T_world_from_colour, srgb8)
@@ -540,15 +769,31 @@ class Pipeline:
         if self._renderer is None:
             self._renderer = render.Renderer(self.calibration.colour, backend=self.config.render.backend)
         base = self.object_base
+        receivers = None
+        differential = self._differential and self.receiver_ratio is not None and len(self._diff_shader.receivers)
         with self.timer.stage("Rasterise"):
-            layer = self._renderer.render(
-                T_world_from_colour,
-                self._object.vertices + base, self._object.faces, self.colours,
-                self._plane.vertices + base, self._plane.faces, self.plane_alpha,
-            )
+            if differential:
+                # the receivers (map mesh + the support plane) replace the paper-003 plane; only their
+                # triangles whose ratio differs from 1 change a pixel
+                none = (np.zeros((0, 3)), np.zeros((0, 3), np.int32), np.zeros(0))
+                layer = self._renderer.render(T_world_from_colour, self._object.vertices + base, self._object.faces,
+                                              self.colours, *none)
+                receivers = self._renderer.render(T_world_from_colour, self._diff_shader.receivers.vertices,
+                                                  self._receiver_faces, self.receiver_ratio, *none)
+            else:
+                layer = self._renderer.render(
+                    T_world_from_colour,
+                    self._object.vertices + base, self._object.faces, self.colours,
+                    self._plane.vertices + base, self._plane.faces, self.plane_alpha,
+                )
         with self.timer.stage("Composite"):
-            image = render.composite(srgb8, layer, ccm_inverse=np.linalg.inv(self.capture.matrix),
-                                     shadow_grey=self.config.render.shadow_grey)
+            if receivers is None:
+                image = render.composite(srgb8, layer, ccm_inverse=np.linalg.inv(self.capture.matrix),
+                                         shadow_grey=self.config.render.shadow_grey)
+            else:
+                image = render.composite_differential(srgb8, layer, receivers,
+                                                      ccm_inverse=np.linalg.inv(self.capture.matrix),
+                                                      shadow_grey=self.config.render.shadow_grey)
         return ColourStep(timestamp_ns, image, srgb8)
 
     def close(self) -> None:

@@ -43,7 +43,8 @@ def span32(x: float, half: float, limit: float) -> tuple[int, int]:
 
 def update_reference(em: EnvironmentMap, pts: np.ndarray, cols: np.ndarray, device: np.ndarray, focal: float,
                      config: UpdateConfig, fill_only: np.ndarray | None = None,
-                     averaged: np.ndarray | None = None, views: np.ndarray | None = None) -> tuple[int, dict[str, int]]:
+                     averaged: np.ndarray | None = None, views: np.ndarray | None = None,
+                     clipped: np.ndarray | None = None, clip_flags: np.ndarray | None = None) -> tuple[int, dict[str, int]]:
     """The map update one sample and one pixel at a time, writing ``em`` in place.
 
     1. Each finite sample (point and colour) at a positive finite distance covers its footprint's
@@ -59,16 +60,25 @@ def update_reference(em: EnvironmentMap, pts: np.ndarray, cols: np.ndarray, devi
        counted ``"kept_view"`` instead of under its rule, when the device's distance from the origin
        exceeds view_ratio × the pixel's view distance. A taken pixel's view distance becomes the
        device's distance (float32), or the smaller of the two for a same-surface sample.
+    5. HDR (``clipped`` (N,) bool per sample, ``clip_flags`` (H, W) per pixel, 1 where its colour came
+       from a clipped sample): after 4, a same-surface clipped sample over an unclipped colour is
+       refused (``"kept_clipped"``); a same-surface clipped sample over a clipped colour keeps the
+       larger value per channel (not averaged); an unclipped sample over a clipped colour replaces
+       it. Every taken pixel's flag becomes the sample's.
 
     ``averaged``: (H, W) int array of each pixel's colour-average count, ``views``: (H, W) float32
-    array of the view distances (inf: unknown), both kept by the caller across calls (zeros and inf
-    when None). Returns the number of covered pixels and the pixels taken per rule (plus
-    ``"averaged"`` and ``"kept_view"``).
+    array of the view distances (inf: unknown), ``clip_flags``, all kept by the caller across calls
+    (zeros, inf and zeros when None). Returns the number of covered pixels and the pixels taken per
+    rule (plus ``"averaged"``, ``"kept_view"`` and ``"kept_clipped"``).
     """
     if averaged is None:
         averaged = np.zeros((em.height, em.width), int)
     if views is None:
         views = np.full((em.height, em.width), np.inf, np.float32)
+    if clip_flags is None:
+        clip_flags = np.zeros((em.height, em.width), np.uint8)
+    if clipped is None:
+        clipped = np.zeros(len(pts), bool)
     h, w = em.height, em.width
     row_px, col_px = h / math.pi, w / (2 * math.pi)
     pts = np.asarray(pts, np.float64)
@@ -99,7 +109,7 @@ def update_reference(em: EnvironmentMap, pts: np.ndarray, cols: np.ndarray, devi
     rows, cols_t = trig_tables(h, w)
     o = device - em.origin
     dev_r = math.sqrt(o @ o)
-    counts = {"empty": 0, "closer": 0, "trusted": 0, "removal": 0, "averaged": 0, "kept_view": 0}
+    counts = {"empty": 0, "closer": 0, "trusted": 0, "removal": 0, "averaged": 0, "kept_view": 0, "kept_clipped": 0}
     by_view = config.view_ratio < math.inf and not dev_r < config.trusted_radius_m
     for (rr, cc), (r, i) in zbuf.items():
         rule = None
@@ -122,12 +132,21 @@ def update_reference(em: EnvironmentMap, pts: np.ndarray, cols: np.ndarray, devi
             if by_view and surface and dev_r > float(views[rr, cc]) * config.view_ratio:
                 counts["kept_view"] += 1
                 continue
+            sample_clipped, pixel_clipped = bool(clipped[i]), bool(clip_flags[rr, cc])
+            if surface and sample_clipped and not pixel_clipped:
+                counts["kept_clipped"] += 1
+                continue
             counts[rule] += 1
             views[rr, cc] = min(views[rr, cc], np.float32(dev_r)) if surface else np.float32(dev_r)
+            clip_flags[rr, cc] = sample_clipped
             n_avg = config.colour_average
-            same = surface and n_avg > 1
+            both = surface and sample_clipped and pixel_clipped
+            same = surface and n_avg > 1 and sample_clipped == pixel_clipped and not both
             k = averaged[rr, cc]
-            if same:  # a running mean over at most n_avg samples, in float32 as the kernel
+            if both:  # two lower bounds of the radiance: the larger, per channel
+                em.radiance_planes[:, rr, cc] = np.maximum(em.radiance_planes[:, rr, cc], np.asarray(cols[i], np.float32))
+                averaged[rr, cc] = 0
+            elif same:  # a running mean over at most n_avg samples, in float32 as the kernel
                 wgt = np.float32(1.0) / (np.float32(k) + np.float32(2.0))
                 old = em.radiance_planes[:, rr, cc].copy()
                 em.radiance_planes[:, rr, cc] = old + (np.asarray(cols[i], np.float32) - old) * wgt

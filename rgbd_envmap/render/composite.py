@@ -23,12 +23,19 @@ from functools import lru_cache
 import numpy as np
 
 from rgbd_envmap._kernels import composite as kernels
+from rgbd_envmap._kernels import differential as diff_kernels
 from rgbd_envmap.checks import check_array
 from rgbd_envmap.colour import srgb8_to_linear_lut, srgb_to_linear
-from rgbd_envmap.errors import DTypeError, RangeError, RgbdEnvmapError, ShapeError
+from rgbd_envmap.errors import DTypeError, NonFiniteError, RangeError, RgbdEnvmapError, ShapeError
 from rgbd_envmap.render.layer import Layer
 
-__all__ = ["composite", "srgb8_encoder"]
+__all__ = ["COMPOSITE_MODES", "composite", "composite_differential", "srgb8_encoder"]
+
+#: the composite modes of the pipeline (``render.composite``): ``"paper003"``, the PRT-shaded object and
+#: the shadow plane's alpha (:func:`composite`); ``"differential"``, the object and its change to the
+#: real surfaces from the map's depth, lit by lights + SH (:func:`composite_differential`,
+#: docs/design/differential.md).
+COMPOSITE_MODES = ("paper003", "differential")
 
 ENCODE_BINS = kernels.ENCODE_BINS
 
@@ -97,4 +104,54 @@ def composite(frame_srgb: np.ndarray, layer: Layer, *, ccm_inverse: np.ndarray |
     r0, r1, c0, c1 = layer.bbox
     kernels.composite(out, layer.colour, layer.mask, layer.plane_alpha, r0, r1, c0, c1, m, use_m, grey,
                       srgb8_to_linear_lut(), *srgb8_encoder())
+    return out
+
+
+def composite_differential(frame_srgb: np.ndarray, object_layer: Layer, receiver_layer: Layer, *,
+                           ccm_inverse: np.ndarray | None = None, shadow_grey: float = 0.15) -> np.ndarray:
+    """Differential composite (papers 000 §5, 001 §3.1; docs/design/differential.md).
+
+    ``object_layer``: the rendered object (colours in the reference space) and the shadow plane's
+    alpha; ``receiver_layer``: the real surfaces near the object, rendered with their per-vertex ratio
+    E_with / E_without (reference space) as colour. Per pixel: the object's colour mapped by
+    ``ccm_inverse`` where the object is; where a receiver is, the frame in linear light times the
+    ratio in the reference space, ``M⁻¹ (ratio ⊙ (M · frame))`` (M = the correction matrix, the
+    inverse of ``ccm_inverse``; the frame's radiance · E_with / E_without, i.e. camera +
+    albedo · (E_with − E_without) / π with albedo = π · camera / E_without); elsewhere the paper-003
+    plane blend of :func:`composite` (the fallback where the map has no geometry). Same 8-bit encoding
+    as :func:`composite`; the same codes as
+    :func:`rgbd_envmap.reference.render_differential.composite_differential`.
+
+    Returns:
+        (H, W, 3) uint8 sRGB, a new array; equal to ``frame_srgb`` where both layers are empty.
+    """
+    frame = check_array(frame_srgb, "frame_srgb", shape=("H", "W", 3), dtype=np.uint8)
+    for name, lay in (("object_layer", object_layer), ("receiver_layer", receiver_layer)):
+        if not isinstance(lay, Layer):
+            raise DTypeError(f"{name}: expected a Layer, got {type(lay).__name__}")
+        if frame.shape[:2] != lay.shape:
+            raise ShapeError(f"{name}: expected the frame's size {frame.shape[:2]}, got {lay.shape}")
+    grey_level = float(shadow_grey)
+    if not np.isfinite(grey_level) or grey_level < 0.0:
+        raise RangeError(f"shadow_grey: expected a finite value >= 0, got {shadow_grey}")
+    if ccm_inverse is None:
+        m_inv = m = np.eye(3)
+        use_m = False
+    else:
+        m_inv = check_array(ccm_inverse, "ccm_inverse", shape=(3, 3), dtype=("float", "int"), finite=True)
+        m_inv = np.ascontiguousarray(m_inv, dtype=np.float64)
+        m = np.linalg.inv(m_inv)
+        if not np.isfinite(m).all():
+            raise NonFiniteError("ccm_inverse: expected an invertible matrix")
+        use_m = True
+    out = frame.copy()
+    boxes = [b for b in (object_layer.bbox, receiver_layer.bbox) if b is not None]
+    if not boxes:
+        return out
+    r0, r1 = min(b[0] for b in boxes), max(b[1] for b in boxes)
+    c0, c1 = min(b[2] for b in boxes), max(b[3] for b in boxes)
+    grey = m_inv @ np.full(3, grey_level)
+    diff_kernels.composite_differential(out, object_layer.colour, object_layer.mask, object_layer.plane_alpha,
+                                        receiver_layer.colour, receiver_layer.mask, r0, r1, c0, c1, m, m_inv,
+                                        use_m, grey, srgb8_to_linear_lut(), *srgb8_encoder())
     return out

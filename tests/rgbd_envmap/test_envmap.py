@@ -431,7 +431,7 @@ def test_update_kernel_equals_the_per_sample_reference(splat):
         touched, counts = update_reference(em_r, pts, cols, np.array(device), FOCAL, cfg, fill_only, averaged, views)
         assert stats.touched == touched
         assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal,
-                stats.averaged, stats.kept_view) == tuple(counts.values())
+                stats.averaged, stats.kept_view, stats.kept_clipped) == tuple(counts.values())
         fired += (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged,
                   stats.touched - stats.taken)
         np.testing.assert_array_equal(em_k.valid, em_r.valid)
@@ -471,7 +471,7 @@ def test_update_equal_float32_distances_keep_what_a_sequential_z_test_keeps(spla
             stats = update(em_k, pts, cols, np.array([0.0, 0.0, 1.0]), FOCAL, cfg, fill_only)
             touched, counts = update_reference(em_r, pts, cols, np.array([0.0, 0.0, 1.0]), FOCAL, cfg, fill_only)
             assert stats.touched == touched
-            assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged, stats.kept_view) == tuple(counts.values())
+            assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged, stats.kept_view, stats.kept_clipped) == tuple(counts.values())
             np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
             np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
 
@@ -505,7 +505,7 @@ def test_update_kernel_equals_the_reference_on_odd_widths_across_the_seam_and_po
         stats = update(em_k, pts, cols, np.array(device), focal, cfg, fill_only=fill_only)
         touched, counts = update_reference(em_r, pts, cols, np.array(device), focal, cfg, fill_only, averaged, views)
         assert stats.touched == touched
-        assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged, stats.kept_view) == tuple(counts.values())
+        assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged, stats.kept_view, stats.kept_clipped) == tuple(counts.values())
         np.testing.assert_array_equal(em_k.valid, em_r.valid)
         np.testing.assert_array_equal(em_k.depth_m, em_r.depth_m)
         np.testing.assert_array_equal(em_k.radiance_planes, em_r.radiance_planes)
@@ -654,7 +654,7 @@ def test_viewpoint_rule_kernel_equals_the_reference(ratio):
         touched, counts = update_reference(em_r, pts, cols, device, 30.0, cfg, None, averaged, views)
         assert stats.touched == touched
         assert (stats.taken_empty, stats.taken_closer, stats.taken_trusted, stats.taken_removal, stats.averaged,
-                stats.kept_view) == tuple(counts.values())
+                stats.kept_view, stats.kept_clipped) == tuple(counts.values())
         assert stats.taken == sum(counts[r] for r in ("empty", "closer", "trusted", "removal"))
         if dev_r < cfg.trusted_radius_m:
             assert stats.kept_view == 0  # the trusted sphere is never refused

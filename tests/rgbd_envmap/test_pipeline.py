@@ -39,7 +39,8 @@ def test_every_depth_packet_runs_with_its_colour_frame(sim, packets):
     pipe, out = run(sim, packets)
     depth = [r for r in out if isinstance(r, DepthStep)]
     colour = [r for r in out if isinstance(r, ColourStep)]
-    assert len(depth) == 5 and len(colour) == 30 and pipe.dropped_depth == 0
+    # 30 colour frames, two of them an exposure bracket (HDR capture: into the map, not composited)
+    assert len(depth) == 5 and len(colour) == 28 and pipe.bracketed_frames == 2 and pipe.dropped_depth == 0
     assert depth[0].capture.reference and all(d.timestamp_ns == d.colour_timestamp_ns for d in depth)
     assert sum(d.capture.projected for d in depth) >= 4
     assert pipe.capture.em.valid.any() and pipe.has_lighting
@@ -66,9 +67,13 @@ def test_order_of_depth_and_colour_with_equal_timestamps_does_not_matter(sim, pa
 
 def test_depth_packet_without_a_colour_frame_is_dropped_and_counted(sim, packets):
     no_colour_at_depth = [p for p in packets if not (p.kind == "colour" and p.timestamp_ns in {q.timestamp_ns for q in packets if q.kind == "depth"})]
-    pipe, out = run(sim, no_colour_at_depth, replace(CFG, max_colour_lag_ms=5.0))
+    pipe, out = run(sim, no_colour_at_depth, replace(CFG, max_colour_lag_ms=5.0, colour_fallback_lag_ms=None))
     assert not any(isinstance(r, DepthStep) for r in out)
     assert pipe.dropped_depth == 5 and not pipe.capture.em.valid.any()
+    # with the fallback (default 50 ms), a depth packet whose own colour frame is lost waits and pairs
+    # with the nearer neighbour, 33 ms away
+    pipe, out = run(sim, no_colour_at_depth, replace(CFG, max_colour_lag_ms=5.0))
+    assert sum(isinstance(r, DepthStep) for r in out) == 5 and pipe.late_pairs == 5 and pipe.dropped_depth == 0
     # with a lag allowance of one colour period (33 ms) the next colour frame pairs
     pipe, out = run(sim, no_colour_at_depth, replace(CFG, max_colour_lag_ms=40.0))
     assert sum(isinstance(r, DepthStep) for r in out) == 5

@@ -7,6 +7,7 @@ from rgbd_envmap.colour import decode_nv21, linear_to_srgb
 from rgbd_envmap.errors import RangeError
 from rgbd_envmap.geometry import look_at
 from sim.colour_camera import AutoExposureState, ColourCameraConfig, capture_colour
+from sim.device import TangoDeviceConfig
 from sim.raycast import SceneRaycaster
 from sim.session import Simulator
 from sim.trajectory import load_trajectory
@@ -100,3 +101,53 @@ def test_controls_off_keep_unit_gains():
 def test_zero_size_image_is_a_clear_error():
     with pytest.raises(RangeError, match="width"):
         ColourCameraConfig(width=0, height=120).intrinsics
+
+
+# --- exposure bracketing (HDR capture) -------------------------------------------------------------
+
+
+def test_bracket_schedule_ends_each_run_and_frame_zero_is_live():
+    cfg = ColourCameraConfig(**SMALL)  # default: −4 and −2 EV, 6 frames apart, once every 30 frames
+    brackets = {i: cfg.bracket_at(i) for i in range(95) if cfg.bracket_at(i) is not None}
+    assert brackets == {18: -4.0, 24: -2.0, 48: -4.0, 54: -2.0, 78: -4.0, 84: -2.0}
+    assert all(i % 6 == 0 for i in brackets)  # each on a ToF frame at 30 / 5 Hz
+    assert ColourCameraConfig(**SMALL, bracket_every=0).bracket_at(18) is None
+    with pytest.raises(RangeError, match="bracket_every"):
+        ColourCameraConfig(bracket_every=10, bracket_stride=6)  # two frames 6 apart do not fit in 10
+
+
+def test_exposure_time_times_iso_is_the_gain():
+    cfg = ColourCameraConfig(**SMALL)
+    for gain in (0.05, 1.0, 3.0, 40.0):
+        t, iso = cfg.exposure_time_iso(gain)
+        assert t <= 1.0 / cfg.rate_hz + 1e-15 and t * iso == pytest.approx(gain, rel=1e-12)
+    assert cfg.exposure_time_iso(1.0) == pytest.approx((0.01, 100.0))
+
+
+def test_bracket_frame_is_exposed_off_the_auto_exposure_and_leaves_it_alone(office):
+    cfg = ColourCameraConfig(**SMALL, shot_noise=0.0, read_noise=0.0)
+    state = AutoExposureState(exposure=1.7, white_balance=(1.2, 1.0, 0.8))
+    T = look_at([0.5, 0.5, 1.2], [-1.0, -2.0, 1.3])
+    rc = SceneRaycaster(office)
+    live = capture_colour(rc, T, 0.0, cfg, state, np.random.default_rng(0))
+    low = capture_colour(rc, T, 0.0, cfg, state, np.random.default_rng(0), -4.0)
+    np.testing.assert_allclose(low.gains, live.gains / 16)
+    assert low.bracketed and not live.bracketed
+    assert low.next_state == state and live.next_state != state  # the bracket frame does not meter
+    assert low.exposure_s * low.iso == pytest.approx(1.7 / 16) and live.exposure_s * live.iso == pytest.approx(1.7)
+    expected = np.round(linear_to_srgb(np.clip(low.radiance * low.gains, 0, 1)) * 255).astype(np.int32)
+    decoded = decode_nv21(low.nv21, cfg.height, cfg.width).astype(np.int32)
+    flat = _flat_pixels(low.radiance)
+    assert np.abs(decoded[flat] - expected[flat]).max() <= CODE_TOL
+
+
+def test_session_packets_carry_exposure_and_bracket_flags(office):
+    sim = Simulator(office, load_trajectory("orbit"), TangoDeviceConfig(colour=ColourCameraConfig(**SMALL)), seed=0)
+    colour = [sp for sp in sim.run(1.0) if sp.packet.kind == "colour"]
+    assert [i for i, sp in enumerate(colour) if sp.packet.bracketed] == [18, 24]
+    for sp in colour:
+        gain = sp.packet.exposure_s * sp.packet.iso
+        # the packet's exposure is the truth's exposure gain (the green channel's: white balance 1)
+        assert gain == pytest.approx(sp.groundtruth["gains"][1], rel=1e-9)
+    live = [sp.packet.exposure for sp in colour[17:20]]
+    assert colour[18].packet.exposure == pytest.approx(live[0] / 16, rel=0.2)  # the AE drifts a little

@@ -7,12 +7,13 @@ counts taken from the fault record, not from the pipeline's own logic."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from rgbd_envmap.errors import DTypeError, InvalidInputError, RangeError
-from rgbd_envmap.pipeline import Pipeline, PipelineConfig, RenderConfig
+from rgbd_envmap.pipeline import DepthStep, Pipeline, PipelineConfig, RenderConfig
 from rgbd_envmap.pipeline.capture import CaptureConfig
 from sim.colour_camera import ColourCameraConfig
 from sim.device import TangoDeviceConfig
@@ -174,8 +175,27 @@ def test_colour_dropout_withholds_frames_and_the_gaps_are_counted(office, clean)
     # A missing last frame is not a gap anyone can see; every other lost frame is.
     last = max(s.packet.timestamp_ns for s in clean if s.packet.kind == "colour")
     assert pipe.skipped.get("colour_missing", 0) == len(lost - {last})
-    # A depth packet whose same-time frame is lost has none within 20 ms (the next is 33 ms away).
-    assert pipe.skipped.get("depth_no_colour", 0) == len(lost & depth_times) == pipe.dropped_depth
+    # A depth packet whose same-time frame is lost has none within 20 ms (the next is 33 ms away):
+    # it pairs with the nearest delivered frame within 50 ms (the earlier one on a tie), if any.
+    delivered = sorted(s.packet.timestamp_ns for s in got if s.packet.kind == "colour")
+    orphans = sorted(lost & depth_times)
+    want = {}
+    for t in orphans:
+        near = [c for c in delivered if abs(c - t) <= 50_000_000]
+        if near:
+            want[t] = min(near, key=lambda c: (abs(c - t), c))
+    assert 0 < len(want) < len(orphans)  # the burst leaves one depth packet (0.6 s) with no frame within 50 ms
+    assert pipe.late_pairs == len(want)
+    assert pipe.skipped.get("depth_no_colour", 0) == len(orphans) - len(want) == pipe.dropped_depth
+    steps = {r.timestamp_ns: r.colour_timestamp_ns for r in _pipeline(got)[1] if isinstance(r, DepthStep)}
+    assert {t: steps[t] for t in want} == want
+    assert pipe.depth_steps == 10 - (len(orphans) - len(want))
+    # Without the fallback, every such depth packet is dropped (the pipeline before the fallback).
+    strict = Pipeline(replace(CFG, colour_fallback_lag_ms=None), DEVICE.calibration(), ORIGIN)
+    for sp in got:
+        strict.feed(sp.packet)
+    strict.finish()
+    assert strict.skipped.get("depth_no_colour", 0) == len(orphans) == strict.dropped_depth and strict.late_pairs == 0
 
 
 def test_tracking_loss_without_pose_withholds_both_streams(office, clean):
@@ -228,10 +248,19 @@ def test_pose_jump_offsets_the_reported_pose_and_is_caught(office, clean):
     assert pipe.skipped == {"depth_pose_jump": 5}
     from dataclasses import replace
 
-    short = Pipeline(replace(CFG, pose_check=replace(CFG.pose_check, jump_hold_s=0.0)), DEVICE.calibration(), ORIGIN)
+    short = Pipeline(replace(CFG, pose_check=replace(CFG.pose_check, jump_hold_s=0.0, map_check=False)), DEVICE.calibration(), ORIGIN)
     for sp in got:
         short.feed(sp.packet)
     assert short.skipped == {"depth_pose_jump": 2}  # without a hold: only the packet after each jump
+    # The map check catches offset packets past the hold: both inside the span (1.2, 1.4 s) are
+    # skipped (with the jump undone their points fit the map better), and the snap back may cost one more.
+    checked = Pipeline(replace(CFG, pose_check=replace(CFG.pose_check, jump_hold_s=0.0)), DEVICE.calibration(), ORIGIN)
+    steps = [r.timestamp_ns for sp in got for r in checked.feed(sp.packet) if isinstance(r, DepthStep)]
+    n = checked.skipped.get("depth_inconsistent_with_map", 0)
+    assert checked.skipped.get("depth_pose_jump") == 2 and 2 <= n <= 3 and set(checked.skipped) <= {"depth_pose_jump", "depth_inconsistent_with_map"}
+    start = min(sp.packet.timestamp_ns for sp in got)
+    inside = [t for t in steps if 1.0e9 <= t - start < 1.5e9]
+    assert inside == []  # both offset packets (1.2, 1.4 s) are skipped; a third may be after the snap back, before the map vouches
 
 
 def test_pose_check_can_be_switched_off(office):
@@ -273,7 +302,7 @@ def test_jitter_beyond_the_pairing_lag_costs_pairs_and_the_pipeline_says_so(offi
     from dataclasses import replace
 
     got, _ = _faulty(office, FaultConfig(seed=4, timestamp_jitter_ms=8.0))
-    pipe = Pipeline(replace(CFG, max_colour_lag_ms=5.0), DEVICE.calibration(), ORIGIN)
+    pipe = Pipeline(replace(CFG, max_colour_lag_ms=5.0, colour_fallback_lag_ms=None), DEVICE.calibration(), ORIGIN)
     for sp in got:
         pipe.feed(sp.packet)
     pipe.finish()
@@ -284,6 +313,14 @@ def test_jitter_beyond_the_pairing_lag_costs_pairs_and_the_pipeline_says_so(offi
     far = sum(1 for p in stamps.values() if "depth" in p and abs(p["depth"] - p["colour"]) > 5e6)
     assert 0 < far < 10
     assert pipe.skipped == {"depth_no_colour": far} and pipe.depth_steps == 10 - far
+    # With the fallback (50 ms, the default) they pair with their own frame after all: it is the
+    # nearest (at most 16 ms away), it only came later than 5 ms allows.
+    loose = Pipeline(replace(CFG, max_colour_lag_ms=5.0), DEVICE.calibration(), ORIGIN)
+    steps = [r for sp in got for r in loose.feed(sp.packet) if isinstance(r, DepthStep)]
+    loose.finish()
+    assert loose.skipped == {} and loose.late_pairs == far and loose.depth_steps == 10
+    own = {p["depth"]: p["colour"] for p in stamps.values() if "depth" in p}
+    assert all(r.colour_timestamp_ns == own[r.timestamp_ns] for r in steps)
 
 
 def test_reordering_delivers_every_packet_within_the_window(office, clean):
@@ -408,3 +445,30 @@ def test_fault_options_are_checked_by_the_parser(tmp_path, capsys):
             main(["simulate", "--duration", "1", "--out", str(tmp_path / "x"), *bad])
         assert exc.value.code == 2
         assert bad[0] in capsys.readouterr().err
+
+
+def test_the_map_check_runs_only_after_a_jump_and_gives_a_lasting_offset_up(office, clean):
+    # Fault-free: no jump, so nothing is ever checked (the session is the same bit for bit).
+    pipe = Pipeline(CFG, DEVICE.calibration(), ORIGIN)
+    for sp in clean:
+        pipe.feed(sp.packet)
+        assert pipe.map_consistency is None
+    assert pipe.skipped == {} and pipe.map_check_accepted == 0
+    # An offset that stays from 0.8 s: with a short hold, the packets after it are tested.
+    got, _ = _faulty(office, FaultConfig(pose_jumps=(PoseJump(0.8, math.inf, (0.15, -0.05, 0.0), 8.0),)))
+    hold = replace(CFG.pose_check, jump_hold_s=0.2)
+    never = Pipeline(replace(CFG, pose_check=replace(hold, map_accept_after_s=None)), DEVICE.calibration(), ORIGIN)
+    for sp in got:
+        never.feed(sp.packet)
+    tested = never.skipped.get("depth_inconsistent_with_map", 0)
+    assert tested >= 2 and never.map_check_accepted == 0  # of the five packets 1.0 … 1.8 s
+    # Given up 0.5 s after the jump: nothing is skipped for the map after that, once accepted.
+    soon = Pipeline(replace(CFG, pose_check=replace(hold, map_accept_after_s=0.5)), DEVICE.calibration(), ORIGIN)
+    skipped_at = []
+    for sp in got:
+        before = soon.skipped.get("depth_inconsistent_with_map", 0)
+        soon.feed(sp.packet)
+        if soon.skipped.get("depth_inconsistent_with_map", 0) > before:
+            skipped_at.append(sp.t_s)
+    assert soon.map_check_accepted == 1 and all(t < 1.3 for t in skipped_at)
+    assert soon.depth_steps > never.depth_steps

@@ -1,0 +1,365 @@
+"""Differential rendering: the virtual object's change to the real surfaces around it, lit by lights
+from the map and SH (papers 000 §4.2–5 and 001 §3.1; docs/design/differential.md).
+
+The map is split into a direct part (the brightest pixels holding a fraction τ of its energy,
+:func:`rgbd_envmap.lights.split_direct_indirect`) sampled into a few lights with world positions (from
+the map's depth), and an indirect rest kept as SH coefficients, so every pixel's energy counts once.
+On each real surface point x with normal n near the object (a vertex of the
+:class:`~rgbd_envmap.render.geometry.ReceiverMesh` built from the map's depth):
+
+    E_without(x) = Σ_i I_i max(0, n·ℓ_i) / r_i²  +  Σ_k L_k Â_l Y_k(n)
+    E_with(x)    = Σ_i I_i max(0, n·ℓ_i) / r_i² V_i(x)  +  Σ_k L_k (Â_l Y_k(n) − B_k(x))  +  F(x) · L_obj
+
+with I_i = power_i · |p_i − origin|² the light's intensity (a distant light, without a position, gives
+power_i max(0, n·d_i)), V_i the visibility of light i through the virtual object (a shadow ray from x
+to the light's position against the object's mesh), B_k(x) = ∫_blocked max(0, n·ω) Y_k(ω) dω the SH
+projection of the directions in which x sees the object, F(x) = ∫_blocked max(0, n·ω) dω their
+cosine-weighted solid angle and L_obj the object's mean outgoing radiance (the light it reflects onto
+x, paper 001's colour bleeding from virtual to real). B and F are estimated once per receiver mesh by
+casting ``samples`` stratified rays per vertex into the cone of the object's bounding sphere.
+
+The composite is then camera · E_with / E_without per channel in the reference colour space
+(:func:`rgbd_envmap.render.composite.composite_differential`): with the real surface's albedo
+ρ = π · camera / E_without (radiance over irradiance), final = camera + ρ (E_with − E_without) / π,
+paper 000 eq. 14 / paper 001's L_rv − L_r added to the frame. The object's own vertices are shaded
+with the same lights, each with a self-shadow ray, plus the PRT of the indirect coefficients
+(:func:`object_radiance`).
+
+Shadow rays use open3d's Embree ray caster (no numba kernel); visibility is cached per light position
+(a light within 1 cm of a cached one reuses its rays: a 0.3° shift of a lamp 1.9 m away), since the
+lamp of a captured map stays put from one depth frame to the next.
+
+References:
+    - Rohmer, Büschel, Dachselt, Grosch (paper 000) §4.2 (direct / indirect split), §4.3 (lights with
+      positions), §5 (shadows from the lights, differential rendering).
+    - Knecht, Traxler, Mattausch, Purgathofer, Wimmer, Differential Instant Radiosity for Mixed Reality
+      (paper 001) §3.1 (L_rv − L_r added to the camera image), §3.7 (light from virtual onto real).
+    - Debevec (1998), Rendering synthetic objects into real scenes (differential rendering).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rgbd_envmap import sh
+from rgbd_envmap.checks import check_array, check_number
+from rgbd_envmap.errors import InvalidInputError
+from rgbd_envmap.lights import LightSet
+from rgbd_envmap.render.geometry import ReceiverMesh
+
+__all__ = ["ObjectOccluder", "ReceiverOcclusion", "cone_directions", "direct_irradiance", "object_radiance",
+           "receiver_occlusion", "receiver_ratio"]
+
+#: rays per open3d call (bounded memory).
+_CHUNK = 1 << 18
+
+
+def _fib_pattern(m: int) -> np.ndarray:
+    """(m, 2) stratified points in [0, 1)²: the Fibonacci lattice ((i + ½)/m, frac(i φ⁻¹))."""
+    i = np.arange(m, dtype=np.float64)
+    return np.stack([(i + 0.5) / m, np.mod(i * 0.6180339887498949, 1.0)], axis=1)
+
+
+def _frame(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (N, 3) completing unit ``axis`` (N, 3) to an orthonormal frame."""
+    helper = np.where(np.abs(axis[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    t = np.cross(axis, helper)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    return t, np.cross(axis, t)
+
+
+def cone_directions(axis: np.ndarray, cos_max: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Stratified directions (N, m, 3) uniform in the cones around unit ``axis`` (N, 3) of half-angle
+    acos(cos_max) (N,), and each cone's solid angle (N,) = 2π (1 − cos_max)."""
+    u = _fib_pattern(m)
+    cos_t = 1.0 - u[None, :, 0] * (1.0 - cos_max[:, None])
+    sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t * cos_t))
+    phi = 2 * np.pi * u[None, :, 1]
+    t, b = _frame(axis)
+    d = (cos_t[..., None] * axis[:, None, :] + (sin_t * np.cos(phi))[..., None] * t[:, None, :]
+         + (sin_t * np.sin(phi))[..., None] * b[:, None, :])
+    return d, 2 * np.pi * (1.0 - cos_max)
+
+
+class ObjectOccluder:
+    """The virtual object's mesh in the world, ready for shadow rays (open3d RaycastingScene), with
+    its bounding sphere (centre of the bounding box, radius to the farthest vertex)."""
+
+    def __init__(self, vertices_world: object, faces: object) -> None:
+        import open3d as o3d  # local: importing open3d is slow
+
+        v = check_array(vertices_world, "vertices_world", shape=("V", 3), dtype=("float", "int"), finite=True)
+        f = check_array(faces, "faces", shape=("F", 3), dtype="int")
+        self.vertices = np.asarray(v, np.float64)
+        self.centre = 0.5 * (self.vertices.min(axis=0) + self.vertices.max(axis=0))
+        self.radius = float(np.linalg.norm(self.vertices - self.centre, axis=1).max()) if len(v) else 0.0
+        self._o3d = o3d
+        self._scene = o3d.t.geometry.RaycastingScene()
+        if len(f):
+            self._scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(v, np.float32)),
+                                      o3d.core.Tensor(np.ascontiguousarray(f, np.uint32)))
+
+    def blocked(self, origins: np.ndarray, vectors: np.ndarray, t_far: float = np.inf) -> np.ndarray:
+        """(N,) bool: the ray origins + t · vectors, 0 < t < ``t_far``, meets the object (t in units of
+        |vectors|: with t_far = 1 and vectors = target − origin the segment to the target)."""
+        out = np.zeros(len(origins), bool)
+        for s in range(0, len(origins), _CHUNK):
+            rays = np.concatenate([origins[s:s + _CHUNK], vectors[s:s + _CHUNK]], axis=1).astype(np.float32)
+            hit = self._scene.test_occlusions(self._o3d.core.Tensor(rays), tnear=0.0, tfar=float(t_far))
+            out[s:s + _CHUNK] = hit.numpy().astype(bool)
+        return out
+
+
+class ReceiverOcclusion:
+    """What the object hides from each receiver vertex: ``blocked_sh`` (V, n²) float64 B_k and
+    ``blocked_cos`` (V,) float64 F (module docstring)."""
+
+    def __init__(self, blocked_sh: np.ndarray, blocked_cos: np.ndarray) -> None:
+        self.blocked_sh = blocked_sh
+        self.blocked_cos = blocked_cos
+
+
+def receiver_occlusion(receivers: ReceiverMesh, occluder: ObjectOccluder, bands: int, *, samples: int = 32,
+                       offset_m: float = 1e-4) -> ReceiverOcclusion:
+    """B_k and F of every receiver vertex by ``samples`` stratified rays in the cone of the object's
+    bounding sphere (the hemisphere around the normal when the vertex is inside the sphere)."""
+    bands = check_number(bands, "bands", low=1, integer=True)
+    samples = check_number(samples, "samples", low=1, integer=True)
+    V = len(receivers)
+    out_sh = np.zeros((V, bands * bands))
+    out_cos = np.zeros(V)
+    if V == 0 or occluder.radius <= 0:
+        return ReceiverOcclusion(out_sh, out_cos)
+    p, n = receivers.vertices, receivers.normals
+    to_c = occluder.centre - p
+    d = np.linalg.norm(to_c, axis=1)
+    r = occluder.radius
+    inside = d <= r * 1.0001
+    sin_a = np.where(inside, 1.0, r / np.maximum(d, 1e-12))
+    cos_a = np.sqrt(np.maximum(0.0, 1.0 - sin_a ** 2))
+    axis = np.where(inside[:, None], n, to_c / np.maximum(d, 1e-12)[:, None])
+    cos_max = np.where(inside, 0.0, cos_a)
+    # the cone can be seen from the front of the surface at all
+    above = inside | (np.sum(n * axis, axis=1) > -sin_a)
+    idx = np.flatnonzero(above)
+    step = max(1, _CHUNK // samples)
+    for s in range(0, len(idx), step):
+        ii = idx[s:s + step]
+        dirs, omega = cone_directions(axis[ii], cos_max[ii], samples)  # (c, m, 3)
+        cos = np.einsum("ck,cmk->cm", n[ii], dirs)
+        front = cos > 0
+        ci, mi = np.nonzero(front)
+        org = p[ii][ci] + offset_m * n[ii][ci]
+        hit = occluder.blocked(org, dirs[ci, mi])
+        ci, mi = ci[hit], mi[hit]
+        if not len(ci):
+            continue
+        w = (omega[ci] / samples) * cos[ci, mi]
+        y = sh.basis(dirs[ci, mi], bands)
+        rows = ii[ci]
+        np.add.at(out_cos, rows, w)
+        np.add.at(out_sh, rows, y * w[:, None])
+    return ReceiverOcclusion(out_sh, out_cos)
+
+
+def _light_geometry(lights: LightSet, points: np.ndarray):
+    """Per (point, light): the vector to the light (a long one for a distant light), the factor that
+    turns power into irradiance on a surface facing it, and which lights count."""
+    has_pos = np.zeros(len(lights), bool) if lights.positions is None else np.isfinite(lights.positions).all(axis=1)
+    vec = np.empty((len(points), len(lights), 3))
+    fac = np.empty((len(points), len(lights)))
+    if has_pos.any():
+        pos = lights.positions[has_pos]
+        r2o = np.sum((pos - lights.origin) ** 2, axis=1)
+        delta = pos[None] - points[:, None]
+        r2 = np.maximum(np.sum(delta ** 2, axis=2), 1e-12)
+        vec[:, has_pos] = delta
+        fac[:, has_pos] = r2o[None] / r2 / np.sqrt(r2)  # I / r² / |delta| (cos from the unnormalised delta)
+    if (~has_pos).any():
+        vec[:, ~has_pos] = lights.directions[~has_pos][None] * 1e3  # "at infinity": 1 km away
+        fac[:, ~has_pos] = 1e-3
+    return vec, fac, has_pos
+
+
+def direct_irradiance(lights: LightSet, points: object, normals: object, visible: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) float64 irradiance of ``lights`` at world ``points`` (N, 3) with unit ``normals`` (N, 3):
+    point lights where a light has a position (intensity power · |p − origin|², inverse square law),
+    directional ones where not; ``visible`` (N, n) bool multiplies each light's term."""
+    if not isinstance(lights, LightSet):
+        raise InvalidInputError(f"lights: expected a LightSet, got {type(lights).__name__}")
+    pts = check_array(points, "points", shape=("N", 3), dtype=("float", "int"), finite=True).astype(np.float64)
+    nrm = check_array(normals, "normals", shape=(len(pts), 3), dtype=("float", "int"), finite=True).astype(np.float64)
+    if len(lights) == 0 or len(pts) == 0:
+        return np.zeros((len(pts), 3))
+    vec, fac, _ = _light_geometry(lights, pts)
+    w = np.maximum(np.einsum("pk,plk->pl", nrm, vec), 0.0) * fac
+    if visible is not None:
+        w = w * visible
+    return w @ lights.power
+
+
+def light_visibility(lights: LightSet, points: np.ndarray, normals: np.ndarray, occluder: ObjectOccluder, *,
+                     offset_m: float = 1e-4, cull: bool = True) -> np.ndarray:
+    """(N, n) bool: light i seen from point x past the object (a shadow ray from x + offset · n to
+    the light's position, or 1 km along a distant light's direction). With ``cull`` only rays that
+    pass within the object's bounding sphere are cast (the others cannot meet it)."""
+    pts = np.asarray(points, np.float64)
+    nrm = np.asarray(normals, np.float64)
+    vis = np.ones((len(pts), len(lights)), bool)
+    if len(pts) == 0 or len(lights) == 0 or occluder.radius <= 0:
+        return vis
+    vec, _, _ = _light_geometry(lights, pts)
+    org = pts + offset_m * nrm
+    for i in range(len(lights)):
+        v = vec[:, i]
+        if cull:
+            # distance from the sphere's centre to the segment org → org + v
+            w = occluder.centre - org
+            t = np.clip(np.sum(w * v, axis=1) / np.maximum(np.sum(v * v, axis=1), 1e-300), 0.0, 1.0)
+            near = np.sum((w - t[:, None] * v) ** 2, axis=1) <= occluder.radius ** 2
+            sel = np.flatnonzero(near)
+        else:
+            sel = np.arange(len(pts))
+        if len(sel):
+            vis[sel, i] = ~occluder.blocked(org[sel], v[sel], 1.0)
+    return vis
+
+
+def receiver_ratio(e_without: np.ndarray, e_with: np.ndarray, *, floor: float = 1e-6, high: float = 4.0) -> np.ndarray:
+    """(N, 3) float32 E_with / E_without per channel, 1 where E_without ≤ ``floor`` · its largest
+    value (no light to change), clipped to [0, ``high``]."""
+    e0 = np.asarray(e_without, np.float64)
+    e1 = np.asarray(e_with, np.float64)
+    lim = floor * max(float(e0.max(initial=0.0)), 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(e0 > lim, e1 / e0, 1.0)
+    return np.clip(r, 0.0, high).astype(np.float32)
+
+
+def object_radiance(albedo: object, transfer: np.ndarray, coeffs_indirect: np.ndarray, direct: np.ndarray) -> np.ndarray:
+    """(V, 3) float32 outgoing radiance of the object's vertices: albedo / π · (direct irradiance
+    (V, 3) from the lights, self-shadowed + Σ_k L_k T_k of the indirect coefficients)."""
+    a = np.asarray(albedo, np.float64).reshape(1, 3)
+    e = np.asarray(transfer, np.float64) @ np.asarray(coeffs_indirect, np.float64) + direct
+    return (a / np.pi * np.maximum(e, 0.0)).astype(np.float32)
+
+
+class DifferentialShader:
+    """The per-relight state of the differential composite: the object in the world (its shadow-ray
+    scene), the receiver mesh with its :class:`ReceiverOcclusion`, and, per light, the weights that
+    turn its power into irradiance at every receiver and object vertex (cosine, distance and shadow
+    ray), cached by the light's position (``cache_m``, 1 cm: a light that moved less reuses them; the
+    lamp of a captured map stays put from one depth frame to the next, up to the jitter of its
+    power-weighted mean position as the map is updated).
+
+    :meth:`shade` returns the object's vertex radiance and the receivers' per-vertex ratio
+    E_with / E_without (module docstring)."""
+
+    def __init__(self, object_vertices_world: object, object_faces: object, object_normals: object, *,
+                 samples: int = 32, cache_m: float = 0.01) -> None:
+        self.occluder = ObjectOccluder(object_vertices_world, object_faces)
+        self.object_normals = np.asarray(object_normals, np.float64)
+        self.samples = check_number(samples, "samples", low=1, integer=True)
+        self.cache_m = check_number(cache_m, "cache_m", low=0.0)
+        self.receivers = ReceiverMesh.empty()
+        self._occlusion: ReceiverOcclusion | None = None
+        self._bands = 0
+        self._t0 = self._t1 = np.zeros((0, 0))
+        # key → (receiver weights unshadowed, shadowed, object weights shadowed), each (V,) float64
+        self._weights: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    @property
+    def cached_lights(self) -> tuple[tuple, ...]:
+        """The keys of the lights whose rays are cached (quantised positions or directions)."""
+        return tuple(self._weights)
+
+    def set_receivers(self, receivers: ReceiverMesh, bands: int) -> None:
+        """A new receiver mesh (the map's geometry changed): its occlusion is estimated anew, and its
+        SH transfer without (Â_l Y_k(n)) and with the object (minus B_k) kept."""
+        self.receivers = receivers
+        self._bands = check_number(bands, "bands", low=1, integer=True)
+        self._occlusion = receiver_occlusion(receivers, self.occluder, bands, samples=self.samples)
+        from rgbd_envmap.prt import unoccluded_transfer
+
+        t0 = unoccluded_transfer(receivers.normals, bands).astype(np.float64) if len(receivers) else \
+            np.zeros((0, bands * bands))
+        self._t0 = t0
+        self._t1 = t0 - self._occlusion.blocked_sh
+        self._weights = {}
+
+    def _key(self, lights: LightSet, i: int) -> tuple:
+        q = max(self.cache_m, 1e-9)
+        if lights.positions is not None and np.isfinite(lights.positions[i]).all():
+            return ("p",) + tuple(np.round(lights.positions[i] / q).astype(np.int64).tolist())
+        return ("d",) + tuple(np.round(lights.directions[i] * 1e5).astype(np.int64).tolist())
+
+    def _light_weights(self, lights: LightSet) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(R, n) unshadowed and (R, n) shadowed receiver weights, (V, n) shadowed object weights."""
+        R, V = len(self.receivers), len(self.occluder.vertices)
+        w0, w1, wo = np.zeros((R, len(lights))), np.zeros((R, len(lights))), np.zeros((V, len(lights)))
+        keep: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        unit = np.ones((1, 3))
+        cached = list(self._weights.items())
+        for i in range(len(lights)):
+            key = self._key(lights, i)
+            hit = self._weights.get(key)
+            if hit is None and key[0] == "p":  # a cached light within cache_m of this one
+                p = lights.positions[i]
+                q = max(self.cache_m, 1e-9)
+                for k, w in cached:
+                    if k[0] == "p" and np.linalg.norm(np.asarray(k[1:], np.float64) * q - p) <= self.cache_m:
+                        key, hit = k, w
+                        break
+            if hit is None:
+                one = LightSet(lights.directions[i:i + 1], unit, lights.method,
+                               positions=None if lights.positions is None else lights.positions[i:i + 1],
+                               origin=lights.origin)
+                p, n = self.receivers.vertices, self.receivers.normals
+                r0 = direct_irradiance(one, p, n)[:, 0]
+                rv = light_visibility(one, p, n, self.occluder)[:, 0]
+                ov = light_visibility(one, self.occluder.vertices, self.object_normals, self.occluder, cull=False)[:, 0]
+                o1 = direct_irradiance(one, self.occluder.vertices, self.object_normals)[:, 0] * ov
+                hit = (r0, r0 * rv, o1)
+            keep[key] = hit
+            w0[:, i], w1[:, i], wo[:, i] = hit
+        self._weights = keep
+        return w0, w1, wo
+
+    def shade(self, lights: LightSet | None, coeffs_indirect: np.ndarray, transfer: np.ndarray,
+              albedo: object) -> tuple[np.ndarray, np.ndarray]:
+        """(object vertex radiance (V, 3) float32, receiver ratio (R, 3) float32) for the lights (None:
+        no direct part) and the indirect SH coefficients (n², 3); ``transfer`` (V, ≥ n²) the object's
+        PRT transfer (its first n² columns are used)."""
+        from rgbd_envmap.prt import shade as prt_shade
+
+        c = np.asarray(coeffs_indirect, np.float64)
+        nk = c.shape[0]
+        if self._occlusion is not None and nk > self._bands ** 2:
+            raise InvalidInputError(f"coeffs_indirect: expected at most {self._bands}² rows (the receivers' bands), got {nk}")
+        has = lights is not None and len(lights) > 0
+        if has:
+            w0, w1, wo = self._light_weights(lights)
+        a = np.asarray(albedo, np.float64).reshape(3)
+        colours = prt_shade(np.asarray(transfer)[:, :nk], c, a)
+        if has:
+            colours = (colours + (a / np.pi) * (wo @ lights.power)).astype(np.float32)
+        R = len(self.receivers)
+        if R == 0:
+            return colours, np.ones((0, 3), np.float32)
+        e0 = np.maximum(self._t0[:, :nk] @ c, 0.0)
+        e1 = np.maximum(self._t1[:, :nk] @ c, 0.0)
+        l_obj = colours.astype(np.float64).mean(axis=0)
+        e1 += self._occlusion.blocked_cos[:, None] * l_obj[None]
+        if has:
+            e0 += w0 @ lights.power
+            e1 += w1 @ lights.power
+        ratio = receiver_ratio(e0, e1)
+        return colours, ratio
+
+    def active_faces(self, ratio: np.ndarray, eps: float = 1e-3) -> np.ndarray:
+        """(F', 3) int32 the receiver triangles with a vertex whose ratio is farther than ``eps`` from 1
+        in some channel: the others change no pixel (the composite leaves a pixel within 1e-3 of a
+        ratio of 1 as it is), so they need not be rasterised."""
+        far = (np.abs(np.asarray(ratio, np.float64) - 1.0) > eps).any(axis=1)
+        f = self.receivers.faces
+        return np.ascontiguousarray(f[far[f].any(axis=1)])

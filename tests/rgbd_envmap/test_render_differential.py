@@ -1,0 +1,322 @@
+"""The differential composite: the real geometry from the map's depth, shadow rays, the object's
+occlusion of the indirect light, the energy of lights + SH, and the composite kernel against its
+numpy reference. Every expected value is independent of the code under test (closed forms, brute
+force, or the other implementation)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rgbd_envmap import sh
+from rgbd_envmap.errors import RgbdEnvmapError
+from rgbd_envmap.geometry import equirect_directions, equirect_solid_angles
+from rgbd_envmap.lights import LightSet, irradiance, sample_lights, split_direct_indirect
+from rgbd_envmap.reference.render_differential import composite_differential as composite_ref
+from rgbd_envmap.render import Layer, composite, composite_differential
+from rgbd_envmap.render.differential import (DifferentialShader, ObjectOccluder, cone_directions, direct_irradiance,
+                                             light_visibility, receiver_occlusion, receiver_ratio)
+from rgbd_envmap.render.geometry import ReceiverMesh, merge_receivers, receiver_mesh, support_plane
+
+
+def icosphere(radius: float, centre, subdiv: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """A closed triangle sphere (vertices on the sphere, faces outward)."""
+    t = (1 + 5 ** 0.5) / 2
+    v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t], [0, 1, -t],
+                  [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)
+    f = [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6],
+         [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10],
+         [8, 6, 7], [9, 8, 1]]
+    verts = list(v / np.linalg.norm(v, axis=1, keepdims=True))
+    faces = f
+    for _ in range(subdiv):
+        cache: dict = {}
+
+        def mid(a, b):
+            key = (min(a, b), max(a, b))
+            if key not in cache:
+                m = verts[a] + verts[b]
+                verts.append(m / np.linalg.norm(m))
+                cache[key] = len(verts) - 1
+            return cache[key]
+
+        nf = []
+        for a, b, c in faces:
+            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
+            nf += [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
+        faces = nf
+    return np.asarray(verts) * radius + np.asarray(centre, float), np.asarray(faces, np.int32)
+
+
+def plane_map(H: int, W: int, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Depth of the plane z = −h seen from the origin: h / (−d_z) below the horizon, invalid above."""
+    d = equirect_directions(H, W).astype(np.float64)
+    valid = d[..., 2] < -1e-3
+    depth = np.where(valid, h / np.maximum(-d[..., 2], 1e-3), 0.0)
+    return depth.astype(np.float32), valid
+
+
+# --- the real geometry -----------------------------------------------------------------------------
+
+def test_receiver_mesh_of_a_plane_lies_on_it_faces_up_and_stays_in_range():
+    depth, valid = plane_map(400, 800, 0.1)
+    origin = np.array([0.3, -0.2, 1.0])
+    centre = origin + [0.05, 0.0, -0.05]
+    mesh = receiver_mesh(depth, valid, origin, centre, 0.3, spacing_m=0.005, stride=1)
+    assert len(mesh) > 2000 and len(mesh.faces) > 2000
+    np.testing.assert_allclose(mesh.vertices[:, 2], origin[2] - 0.1, atol=1e-6)
+    np.testing.assert_allclose(mesh.normals, np.tile([0, 0, 1.0], (len(mesh), 1)), atol=1e-5)  # float32 depth
+    assert np.linalg.norm(mesh.vertices - centre, axis=1).max() <= 0.3 + 1e-9
+    # the disc of the plane within the radius is covered, without overlaps: its area to 3 %
+    tri = mesh.vertices[mesh.faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    assert area == pytest.approx(np.pi * (0.3 ** 2 - 0.05 ** 2), rel=0.03)
+    # about one vertex per spacing² of area
+    assert 0.5 < len(mesh) * 0.005 ** 2 / area < 1.5
+
+
+def test_receiver_mesh_cuts_at_a_depth_discontinuity_and_has_no_seam():
+    H, W = 400, 800
+    d = equirect_directions(H, W).astype(np.float64)
+    depth, valid = plane_map(H, W, 0.1)
+    # a floating board z = −0.05 over 0.1 ≤ x ≤ 0.2 in front of the floor
+    t_board = 0.05 / np.maximum(-d[..., 2], 1e-9)
+    xb = d[..., 0] * t_board
+    board = (d[..., 2] < 0) & (xb >= 0.1) & (xb <= 0.2)
+    depth = np.where(board, t_board, depth).astype(np.float32)
+    mesh = receiver_mesh(depth, valid, np.zeros(3), np.zeros(3), 0.5, spacing_m=0.005, stride=1)
+    z = mesh.vertices[:, 2]
+    on_floor = np.abs(z + 0.1) < 1e-5
+    on_board = np.abs(z + 0.05) < 1e-5
+    assert (on_floor | on_board).all() and on_board.sum() > 100
+    f = mesh.faces
+    assert not (on_floor[f].any(1) & on_board[f].any(1)).any()
+    np.testing.assert_allclose(mesh.normals[:, 2], 1.0, atol=1e-5)
+    # no seam at φ = ±180°: some triangle joins both sides
+    phi = np.degrees(np.arctan2(mesh.vertices[:, 1], mesh.vertices[:, 0]))
+    assert ((phi[f] > 175).any(1) & (phi[f] < -175).any(1)).any()
+
+
+def test_support_plane_fills_in_where_the_map_has_no_surface():
+    plane = support_plane(np.array([1.0, 2.0, 0.7]), 0.2, 0.01)
+    assert len(plane) == 41 * 41
+    np.testing.assert_allclose(plane.vertices[:, 2], 0.7)
+    tri = plane.vertices[plane.faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    assert area == pytest.approx(0.4 * 0.4, rel=1e-9)
+    # a map mesh covering x > 1.05: the plane keeps only triangles farther than 0.02 from it
+    g = np.linspace(1.05, 1.2, 16)
+    xy = np.stack(np.meshgrid(g, np.linspace(1.8, 2.2, 41), indexing="ij"), -1).reshape(-1, 2)
+    first = ReceiverMesh(np.concatenate([xy, np.full((len(xy), 1), 0.7)], 1), np.tile([0, 0, 1.0], (len(xy), 1)),
+                         np.array([[0, 1, 41]], np.int32))
+    merged = merge_receivers(first, plane, 0.02)
+    assert len(merged.faces) > 1 and (merged.faces[:1] == first.faces).all()
+    added = merged.vertices[np.unique(merged.faces[1:])]
+    assert added[:, 0].max() < 1.05 - 0.02 + 1e-9 and added[:, 0].min() == pytest.approx(0.8)
+    assert merge_receivers(ReceiverMesh.empty(), plane, 0.02) is plane
+
+
+def test_receiver_mesh_empty_and_bad_inputs():
+    depth, valid = plane_map(50, 100, 0.1)
+    assert len(receiver_mesh(depth, np.zeros_like(valid), np.zeros(3), np.zeros(3), 0.3)) == 0
+    assert len(receiver_mesh(depth, valid, np.zeros(3), np.array([5.0, 0, 0]), 0.3)) == 0
+    with pytest.raises(RgbdEnvmapError, match="radius_m"):
+        receiver_mesh(depth, valid, np.zeros(3), np.zeros(3), 0.0)
+    with pytest.raises(RgbdEnvmapError, match="valid"):
+        receiver_mesh(depth, valid[:10], np.zeros(3), np.zeros(3), 0.3)
+
+
+# --- rays and occlusion ----------------------------------------------------------------------------
+
+def test_cone_directions_inside_the_cone_with_its_solid_angle():
+    rng = np.random.default_rng(1)
+    axis = rng.normal(size=(5, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    cos_max = np.array([0.0, 0.5, 0.9, 0.99, -1.0])
+    d, omega = cone_directions(axis, cos_max, 64)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=2), 1.0, atol=1e-12)
+    assert (np.einsum("ck,cmk->cm", axis, d) >= cos_max[:, None] - 1e-12).all()
+    np.testing.assert_allclose(omega, 2 * np.pi * (1 - cos_max))
+    # uniform in the cone: the mean of cos θ is (1 + cos_max) / 2
+    np.testing.assert_allclose(np.einsum("ck,cmk->cm", axis, d).mean(1), (1 + cos_max) / 2, atol=1e-3)
+
+
+def test_shadow_of_a_sphere_from_a_point_light_matches_the_closed_form():
+    r, c = 0.05, np.array([0.0, 0.0, 0.08])
+    v, f = icosphere(r, c)
+    occ = ObjectOccluder(v, f)
+    light = np.array([0.1, 0.05, 1.0])
+    g = np.linspace(-0.3, 0.3, 121)
+    pts = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    pts = np.concatenate([pts, np.zeros((len(pts), 1))], 1)
+    nrm = np.tile([0, 0, 1.0], (len(pts), 1))
+    lights = LightSet(((light) / np.linalg.norm(light))[None], np.ones((1, 3)), "test",
+                      positions=light[None], origin=np.zeros(3))
+    vis = light_visibility(lights, pts, nrm, occ)[:, 0]
+    # closed form: the segment x → light meets the sphere
+    w = c - pts
+    u = light - pts
+    t = np.clip(np.sum(w * u, 1) / np.sum(u * u, 1), 0, 1)
+    dist = np.linalg.norm(w - t[:, None] * u, axis=1)
+    sure = np.abs(dist - r) > 2e-3  # away from the penumbra-free edge (the mesh's facets)
+    assert (vis[sure] == (dist[sure] > r)).all()
+    assert (~vis).sum() > 100
+    # without culling the same answer
+    np.testing.assert_array_equal(vis, light_visibility(lights, pts, nrm, occ, cull=False)[:, 0])
+
+
+def test_occlusion_of_a_sphere_over_a_plane_is_its_view_factor():
+    r, c = 0.05, np.array([0.0, 0.0, 0.1])
+    v, f = icosphere(r, c)
+    occ = ObjectOccluder(v, f)
+    x = np.linspace(0.0, 0.3, 16)
+    pts = np.stack([x, np.zeros_like(x), np.zeros_like(x)], 1)
+    nrm = np.tile([0, 0, 1.0], (len(pts), 1))
+    rec = ReceiverMesh(pts, nrm, np.zeros((0, 3), np.int32))
+    o = receiver_occlusion(rec, occ, 3, samples=256)
+    d = np.linalg.norm(c - pts, axis=1)
+    cos_t = (c - pts)[:, 2] / d
+    expect = np.pi * (r / d) ** 2 * cos_t  # ∫ cos dω over a sphere wholly above the horizon
+    np.testing.assert_allclose(o.blocked_cos, expect, rtol=0.04)
+    # B_0 = Y_0 · F (Y_0 constant)
+    np.testing.assert_allclose(o.blocked_sh[:, 0], o.blocked_cos * 0.5 / np.sqrt(np.pi), rtol=1e-9)
+
+
+def test_direct_irradiance_equals_the_light_sets_own():
+    rng = np.random.default_rng(3)
+    n = 7
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    power = rng.uniform(0, 2, (n, 3))
+    origin = np.array([0.1, 0.2, 0.9])
+    pos = origin + d * rng.uniform(0.5, 3, (n, 1))
+    pts = origin + rng.normal(scale=0.2, size=(50, 3))
+    nrm = rng.normal(size=(50, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    point = LightSet(d, power, "t", positions=pos, origin=origin)
+    np.testing.assert_allclose(direct_irradiance(point, pts, nrm), irradiance(point, nrm, pts), rtol=1e-9, atol=1e-12)
+    distant = LightSet(d, power, "t")
+    np.testing.assert_allclose(direct_irradiance(distant, pts, nrm), irradiance(distant, nrm), rtol=1e-9, atol=1e-12)
+    vis = rng.random((50, n)) > 0.5
+    brute = np.einsum("pl,plc->pc", vis * np.maximum(nrm @ d.T, 0), np.broadcast_to(power, (50, n, 3)))
+    np.testing.assert_allclose(direct_irradiance(distant, pts, nrm, vis), brute, rtol=1e-9, atol=1e-12)
+
+
+def test_lights_plus_indirect_sh_count_the_energy_once():
+    H, W = 64, 128
+    d = equirect_directions(H, W).astype(np.float64)
+    omega = equirect_solid_angles(H, W)
+    rad = 0.2 + 0.1 * np.maximum(d[..., :1], 0) * np.array([1.0, 0.8, 0.6])
+    lamp = d @ np.array([0.3, 0.2, 0.93]) > 0.985
+    rad[lamp] = [9.0, 8.5, 8.0]
+    rad = rad.astype(np.float32)
+    split = split_direct_indirect(rad, 0.5)
+    lights = sample_lights(rad, 200, "q2tree", valid=split.direct)
+    coeffs = sh.project_equirect(split.indirect, bands=5)
+    rng = np.random.default_rng(0)
+    nrm = rng.normal(size=(40, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    e = irradiance(lights, nrm) + sh.irradiance(coeffs, nrm)
+    brute = np.einsum("hwc,nhw->nc", rad * omega[..., None], np.maximum(np.einsum("nk,hwk->nhw", nrm, d), 0))
+    np.testing.assert_allclose(e, brute, rtol=0.03)
+
+
+def test_receiver_ratio_floor_and_clip():
+    r = receiver_ratio(np.array([[1.0, 2, 0], [0, 0, 0]]), np.array([[0.5, 10, 3], [1, 1, 1]]))
+    np.testing.assert_allclose(r, [[0.5, 4.0, 1.0], [1, 1, 1]])
+
+
+def test_shader_darkens_the_shadow_and_leaves_far_points():
+    r, c = 0.04, np.array([0.0, 0.0, 0.05])
+    v, f = icosphere(r, c, 3)
+    nv = (v - c) / r
+    shader = DifferentialShader(v, f, nv, samples=64)
+    g = np.linspace(-0.4, 0.4, 41)
+    xy = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    pts = np.concatenate([xy, np.zeros((len(xy), 1))], 1)
+    shader.set_receivers(ReceiverMesh(pts, np.tile([0, 0, 1.0], (len(pts), 1)), np.zeros((0, 3), np.int32)), 3)
+    light = np.array([0.0, 0.0, 2.0])
+    lights = LightSet(np.array([[0, 0, 1.0]]), np.full((1, 3), 1.0), "t", positions=light[None], origin=np.zeros(3))
+    coeffs = np.zeros((9, 3))
+    coeffs[0] = 0.1 * 2 * np.sqrt(np.pi)  # uniform radiance 0.1
+    transfer = np.zeros((len(v), 9))
+    colours, ratio = shader.shade(lights, coeffs, transfer, np.full(3, 0.5))
+    below = np.argmin(np.linalg.norm(pts, axis=1))
+    far = np.argmax(np.linalg.norm(pts, axis=1))
+    assert ratio[below].max() < 0.2
+    np.testing.assert_allclose(ratio[far], 1.0, atol=0.01)
+    # object radiance: albedo / π · the light's irradiance on the top vertex (I = power · |p − o|² = 4)
+    top = np.argmax(v[:, 2])
+    e_top = 4.0 / (light[2] - v[top, 2]) ** 2
+    np.testing.assert_allclose(colours[top], 0.5 / np.pi * e_top, rtol=1e-3)
+    bottom = np.argmin(v[:, 2])
+    np.testing.assert_allclose(colours[bottom], 0.0, atol=1e-9)  # faces away from the light
+
+
+# --- the composite ---------------------------------------------------------------------------------
+
+def random_layers(rng, H=40, W=60):
+    colour = rng.uniform(0, 1.2, (H, W, 3)).astype(np.float32)
+    mask = rng.random((H, W)) < 0.3
+    alpha = np.where(rng.random((H, W)) < 0.5, rng.uniform(0, 1, (H, W)), 0).astype(np.float32)
+    obj = Layer(np.where(mask[..., None], colour, 0).astype(np.float32), mask, np.where(mask, 0, alpha).astype(np.float32),
+                (0, H, 0, W))
+    ratio = rng.uniform(0, 2, (H, W, 3)).astype(np.float32)
+    ratio[rng.random((H, W)) < 0.2] = np.float32(1.0005)  # within RATIO_EPS of 1: left as it is
+    rmask = rng.random((H, W)) < 0.6
+    rec = Layer(np.where(rmask[..., None], ratio, 0).astype(np.float32), rmask, np.zeros((H, W), np.float32), (0, H, 0, W))
+    frame = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
+    return frame, obj, rec
+
+
+def test_kernel_and_reference_share_the_ratio_tolerance():
+    from rgbd_envmap._kernels.differential import RATIO_EPS as kernel_eps
+    from rgbd_envmap.reference.render_differential import RATIO_EPS as ref_eps
+    assert kernel_eps == ref_eps
+
+
+@pytest.mark.parametrize("with_m", [False, True])
+def test_composite_differential_matches_its_reference_bit_for_bit(with_m):
+    rng = np.random.default_rng(5)
+    frame, obj, rec = random_layers(rng)
+    m = np.array([[1.1, 0.05, -0.02], [0.03, 0.95, 0.01], [-0.01, 0.04, 1.05]]) if with_m else None
+    got = composite_differential(frame, obj, rec, ccm_inverse=m, shadow_grey=0.2)
+    np.testing.assert_array_equal(got, composite_ref(frame, obj, rec, ccm_inverse=m, shadow_grey=0.2))
+
+
+def test_composite_differential_reduces_to_paper003_without_receivers_and_to_the_frame_at_ratio_one():
+    rng = np.random.default_rng(6)
+    frame, obj, rec = random_layers(rng)
+    empty = Layer.empty(*frame.shape[:2])
+    np.testing.assert_array_equal(composite_differential(frame, obj, empty, shadow_grey=0.2),
+                                  composite(frame, obj, shadow_grey=0.2))
+    ones = Layer(np.ones(frame.shape, np.float32), np.ones(frame.shape[:2], bool), np.zeros(frame.shape[:2], np.float32),
+                 (0, frame.shape[0], 0, frame.shape[1]))
+    np.testing.assert_array_equal(composite_differential(frame, Layer.empty(*frame.shape[:2]), ones), frame)
+    np.testing.assert_array_equal(composite_differential(frame, empty, empty), frame)
+    # half the light: the linear frame halves
+    half = Layer(np.full(frame.shape, 0.5, np.float32), ones.mask, ones.plane_alpha, ones.bbox)
+    from rgbd_envmap.reference.render_composite import decode_srgb8, encode_srgb8
+    # (within one code: the library decodes through a float32 table)
+    diff = composite_differential(frame, empty, half).astype(int) - encode_srgb8(0.5 * decode_srgb8(frame))
+    assert np.abs(diff).max() <= 1 and (diff != 0).mean() < 0.02
+
+
+def test_shader_reuses_the_rays_of_a_light_that_moved_less_than_cache_m():
+    v, f = icosphere(0.04, [0.0, 0.0, 0.05], 2)
+    shader = DifferentialShader(v, f, (v - [0, 0, 0.05]) / 0.04, samples=8, cache_m=0.01)
+    pts = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
+    shader.set_receivers(ReceiverMesh(pts, np.tile([0, 0, 1.0], (2, 1)), np.zeros((0, 3), np.int32)), 2)
+    coeffs = np.zeros((4, 3))
+
+    def lights_at(p):
+        p = np.asarray(p, float)
+        return LightSet((p / np.linalg.norm(p))[None], np.ones((1, 3)), "t", positions=p[None], origin=np.zeros(3))
+
+    _, r1 = shader.shade(lights_at([0, 0, 2.0]), coeffs, np.zeros((len(v), 4)), np.full(3, 0.5))
+    first = shader.cached_lights
+    _, r2 = shader.shade(lights_at([0.005, 0, 2.0]), coeffs, np.zeros((len(v), 4)), np.full(3, 0.5))
+    assert shader.cached_lights == first  # reused
+    np.testing.assert_array_equal(r1, r2)
+    shader.shade(lights_at([0.05, 0, 2.0]), coeffs, np.zeros((len(v), 4)), np.full(3, 0.5))
+    assert shader.cached_lights != first  # 5 cm: cast anew
