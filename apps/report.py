@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -55,7 +56,9 @@ def _write_csv(path: Path, table: dict[str, dict]) -> None:
 
 
 def _markdown(run: Path, table: dict[str, dict], accuracy: dict, info: dict) -> str:
-    lines = [f"# Run report: {run.name}", ""]
+    # A run is written into ".<name>.partial-<pid>" beside its --out and renamed when complete.
+    name = re.fullmatch(r"\.(.+)\.partial-\d+", run.name)
+    lines = [f"# Run report: {name.group(1) if name else run.name}", ""]
     if info:
         lines += [
             f"{info.get('depth_packets', '?')} depth and {info.get('colour_packets', '?')} colour packets; "

@@ -16,8 +16,9 @@ two maps at the object position:
 Per method, count and map, printed and written with ``--json``:
 
 - ``lag_frames``: depth frames after the dimming until the lights' irradiance on an upward surface
-  (the table's normal) has made 90 % of its final change (the mean over the last 10 frames); the true
-  map's own irradiance makes all of it at the first frame after 8 s;
+  (the table's normal) has made 90 % of its final change (the mean over the last 10 frames), moving
+  towards it; the true map's own irradiance makes all of it at the first frame after 8 s;
+- ``drop``: that final change, relative (the true map's is the lamp's share of the upward light);
 - ``flicker_dir_deg``: the frame-to-frame movement of the lights, the power-weighted mean angle from
   each light to the nearest light of the previous frame (median over the frames of a quiet span);
 - ``flicker_irr``: the frame-to-frame relative change of the lights' irradiance over 26 normals
@@ -82,7 +83,9 @@ def _lag(t: np.ndarray, e_up: np.ndarray, t_step: float) -> int | None:
     e0, e1 = e_up[before[-1]], e_up[-10:].mean()
     if abs(e1 - e0) < 1e-3 * max(abs(e0), 1e-12):
         return None
-    done = np.flatnonzero(np.abs(e_up[after] - e0) >= 0.9 * abs(e1 - e0))
+    # towards the final value: a move the other way first (the map still learning the bright lamp
+    # from a bracket) does not count
+    done = np.flatnonzero((e_up[after] - e0) * np.sign(e1 - e0) >= 0.9 * abs(e1 - e0))
     return int(done[0]) + 1 if len(done) else None
 
 
@@ -142,7 +145,9 @@ def main() -> int:
                 t = (step.timestamp_ns - sim.start_ns) * 1e-9
                 em = pipe.capture.em
                 gt = true_map(t)
-                maps = {"captured": (np.asarray(em.radiance), em.valid.copy(), em.depth_m.copy()),
+                # the correction matrix can leave small negative values in a captured colour: clamped,
+                # as the pipeline's own light split does
+                maps = {"captured": (np.maximum(em.radiance, 0.0), em.valid.copy(), em.depth_m.copy()),
                         "true": (gt.radiance, gt.valid, gt.distance_m)}
                 if not maps["captured"][1].any():
                     continue
@@ -171,21 +176,25 @@ def main() -> int:
     print(f"session and sampling: {time.perf_counter() - t0:.0f} s", flush=True)
 
     rows = {}
-    print(f"{'map':<9} {'method':<8} {'n':>5} {'lag frames':>10} {'flicker deg':>11} {'flicker irr':>11} "
+    print(f"{'map':<9} {'method':<8} {'n':>5} {'lag frames':>10} {'drop':>6} {'flicker deg':>11} {'flicker irr':>11} "
           f"{'irr error':>9} {'ms median':>9}")
     for (src, m, n), s in series.items():
         t = np.asarray(s["t"])
         quiet = t >= 10.0
         fd = np.asarray(s["flicker_dir"])[quiet]
         fi = np.asarray(s["flicker_irr"])[quiet]
-        row = {"lag_frames": _lag(t, np.asarray(s["e_up"]), dim_t),
+        e_up = np.asarray(s["e_up"])
+        before = np.flatnonzero(t < dim_t)
+        drop = float(e_up[-10:].mean() / e_up[before[-1]] - 1.0) if len(before) and e_up[before[-1]] > 0 else None
+        row = {"lag_frames": _lag(t, e_up, dim_t), "drop": drop,
                "flicker_dir_deg": float(np.nanmedian(fd)) if np.isfinite(fd).any() else None,
                "flicker_irr": float(np.nanmedian(fi)) if np.isfinite(fi).any() else None,
                "irr_error": float(np.median(s["irr_err"])), "ms_median": float(np.median(s["ms"])),
                "frames": len(t)}
         rows[f"{src}/{m}/{n}"] = row
         fmt = lambda v, f: "–" if v is None else format(v, f)  # noqa: E731
-        print(f"{src:<9} {m:<8} {n:>5} {fmt(row['lag_frames'], 'd'):>10} {fmt(row['flicker_dir_deg'], '.2f'):>11} "
+        print(f"{src:<9} {m:<8} {n:>5} {fmt(row['lag_frames'], 'd'):>10} {fmt(row['drop'], '.3f'):>6} "
+              f"{fmt(row['flicker_dir_deg'], '.2f'):>11} "
               f"{fmt(row['flicker_irr'], '.4f'):>11} {row['irr_error']:>9.4f} {row['ms_median']:>9.2f}")
     if args.json:
         args.json.write_text(json.dumps({"args": vars(args) | {"json": str(args.json)}, "rows": rows,

@@ -41,7 +41,6 @@ __all__ = [
     "estimate_ccm",
     "ccm_sums",
     "ccm_from_sums",
-    "check_known_gain",
     "matrix_gain",
     "apply_ccm",
     "invert_ccm",
@@ -278,7 +277,7 @@ def estimate_ccm(
     sat = math.inf if saturation is None else _check_saturation(saturation)
     noise_std = check_number(noise_std, "noise_std", low=0.0, optional=True)
     ridge = check_number(ridge, "ridge", low=0.0)
-    known_gain, gain_channel = check_known_gain(known_gain, gain_channel)
+    known_gain, gain_channel = _check_known_gain(known_gain, gain_channel)
     a = _check_ccm_input(src_raw, "src")
     b = _check_ccm_input(dst_raw, "dst")
     return ccm_from_sums(*kernels.ccm_sums(a, b, sat), method, max_mse=max_mse, min_pairs=min_pairs,
@@ -286,7 +285,7 @@ def estimate_ccm(
                          known_gain=known_gain, gain_channel=gain_channel)
 
 
-def check_known_gain(known_gain: object, gain_channel: object = "green") -> tuple[float | None, str]:
+def _check_known_gain(known_gain: object, gain_channel: object = "green") -> tuple[float | None, str]:
     """``(known_gain, gain_channel)`` of :func:`estimate_ccm`, checked: None or a finite number > 0,
     and one of :data:`GAIN_CHANNELS`."""
     check_method(gain_channel, GAIN_CHANNELS, "gain_channel")
@@ -335,7 +334,7 @@ def ccm_from_sums(
 ) -> CCMResult:
     """:func:`estimate_ccm` from the normal-equation sums of its pairs (:func:`ccm_sums`, or the map's
     fused pair pass), the arguments already checked (``known_gain``, ``gain_channel``:
-    :func:`check_known_gain`). ``data`` = (src, dst, saturation) is needed by the colour-science
+    :func:`_check_known_gain`). ``data`` = (src, dst, saturation) is needed by the colour-science
     methods only, which fit the pairs themselves."""
     need = max(min_pairs, _MIN_SOLVABLE_PAIRS)
     identity = np.eye(3)

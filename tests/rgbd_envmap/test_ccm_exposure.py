@@ -11,7 +11,6 @@ from rgbd_envmap.colour.ccm import (
     CCMResult,
     ccm_from_sums,
     ccm_sums,
-    check_known_gain,
     estimate_ccm,
     matrix_gain,
 )
@@ -143,11 +142,12 @@ def test_bad_gain_channels_and_types_are_refused():
         estimate_ccm(src, dst, known_gain=1.0, gain_channel="blue")
     with pytest.raises(UnknownMethodError, match="gain_channel"):
         matrix_gain(np.eye(3), "red")
-    with pytest.raises(DTypeError):
-        check_known_gain("1.0")
-    with pytest.raises(DTypeError):
-        check_known_gain(True)
-    assert check_known_gain(None) == (None, "green")
+    with pytest.raises(DTypeError, match="known_gain"):
+        estimate_ccm(src, dst, known_gain="1.0")
+    with pytest.raises(DTypeError, match="known_gain"):
+        estimate_ccm(src, dst, known_gain=True)
+    with pytest.raises(UnknownMethodError, match="gain_channel"):  # checked even without a known gain
+        estimate_ccm(src, dst, gain_channel="blue")
 
 
 def test_ccm_result_compares_its_fitted_gain():
