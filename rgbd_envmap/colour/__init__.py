@@ -7,6 +7,7 @@ from rgbd_envmap.colour.ccm import (
     CCM_METHODS,
     DEFAULT_MAX_CONDITION,
     DEFAULT_RIDGE,
+    GAIN_CHANNELS,
     MIN_SPREAD_SNR,
     SUMS_CCM_METHODS,
     CCMResult,
@@ -15,6 +16,7 @@ from rgbd_envmap.colour.ccm import (
     ccm_sums,
     estimate_ccm,
     invert_ccm,
+    matrix_gain,
 )
 from rgbd_envmap.colour.hdr import HDRConfig, clipped_pixels, exposure_scale, hdr_frame
 from rgbd_envmap.colour.nv21 import decode_nv21, encode_nv21, linear_to_srgb, srgb8_to_linear_lut, srgb_to_linear
@@ -27,6 +29,7 @@ __all__ = [
     "srgb8_to_linear_lut",
     "CCM_METHODS",
     "SUMS_CCM_METHODS",
+    "GAIN_CHANNELS",
     "DEFAULT_RIDGE",
     "DEFAULT_MAX_CONDITION",
     "MIN_SPREAD_SNR",
@@ -36,6 +39,7 @@ __all__ = [
     "ccm_from_sums",
     "apply_ccm",
     "invert_ccm",
+    "matrix_gain",
     "HDRConfig",
     "clipped_pixels",
     "exposure_scale",

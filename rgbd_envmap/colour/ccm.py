@@ -100,7 +100,8 @@ class CCMResult:
         fitted_gain: with ``known_gain``, the overall gain (:func:`matrix_gain`) of the free fit, which
             ``matrix`` replaced by the known one: fitted / known is the map's brightness over the
             frame's at the same surfaces, the exposure divided out (1: the scene's light did not
-            change; 2.5: the room darkened to 40 % since the map saw it). NaN without ``known_gain``.
+            change; 2.5: the room darkened to 40 % since the map saw it). None without ``known_gain``,
+            and when no finite matrix was fitted.
     """
 
     matrix: np.ndarray
@@ -110,7 +111,7 @@ class CCMResult:
     reason: str
     method: str
     condition: float = math.nan
-    fitted_gain: float = math.nan
+    fitted_gain: float | None = None
 
     def __post_init__(self) -> None:
         m = check_array(self.matrix, "matrix", shape=(3, 3), dtype=("float", "int"))
@@ -121,7 +122,8 @@ class CCMResult:
         object.__setattr__(self, "n_pairs", int(self.n_pairs))
         object.__setattr__(self, "accepted", bool(self.accepted))
         object.__setattr__(self, "condition", float(self.condition))
-        object.__setattr__(self, "fitted_gain", float(self.fitted_gain))
+        if self.fitted_gain is not None:
+            object.__setattr__(self, "fitted_gain", float(self.fitted_gain))
         if self.accepted == bool(self.reason):
             raise InvalidInputError(
                 f"CCMResult: reason must be empty exactly when accepted, got accepted={self.accepted}, "
@@ -135,7 +137,7 @@ class CCMResult:
             np.array_equal(self.matrix, other.matrix, equal_nan=True)
             and (self.mse == other.mse or (math.isnan(self.mse) and math.isnan(other.mse)))
             and (self.condition == other.condition or (math.isnan(self.condition) and math.isnan(other.condition)))
-            and (self.fitted_gain == other.fitted_gain or (math.isnan(self.fitted_gain) and math.isnan(other.fitted_gain)))
+            and self.fitted_gain == other.fitted_gain
             and (self.n_pairs, self.accepted, self.reason, self.method)
             == (other.n_pairs, other.accepted, other.reason, other.method)
         )
@@ -230,7 +232,7 @@ def estimate_ccm(
     the free fit by 1/k in every channel, and this undoes it exactly; the result records G(M⁰) as
     ``fitted_gain``. The gates and the MSE are the free fit's (whether the pairs agree under some
     3×3 matrix; the residual of M itself holds the light change, which is the map's to take); a free
-    fit whose G is not > 0 and finite is rejected, ``"gain ... not positive"``.
+    fit whose G is not > 0 and finite is rejected, ``"gain ... not > 0 and finite"``.
 
     Args:
         src: (..., 3) float linear RGB of the current frame; leading axes are flattened.
@@ -338,7 +340,7 @@ def ccm_from_sums(
     methods only, which fit the pairs themselves."""
     need = max(min_pairs, _MIN_SOLVABLE_PAIRS)
     identity = np.eye(3)
-    fitted_gain = math.nan
+    fitted_gain: float | None = None
 
     def result(matrix: np.ndarray, mse: float, reason: str, cond: float = math.nan) -> CCMResult:
         return CCMResult(matrix, mse, n, not reason, reason, method, cond, fitted_gain)
@@ -368,8 +370,9 @@ def ccm_from_sums(
 
     gain_ok = True
     if known_gain is not None and np.isfinite(matrix).all():
-        fitted_gain = float(_GAIN_WEIGHTS[gain_channel] @ matrix.sum(axis=1))
-        gain_ok = math.isfinite(fitted_gain) and fitted_gain > 0.0
+        g = float(_GAIN_WEIGHTS[gain_channel] @ matrix.sum(axis=1))
+        fitted_gain = g if math.isfinite(g) else None
+        gain_ok = fitted_gain is not None and g > 0.0
         if gain_ok:
             matrix = matrix * (known_gain / fitted_gain)
 
@@ -389,7 +392,7 @@ def ccm_from_sums(
     elif mse > max_mse:
         reason = f"mse {mse:.3g} > {max_mse:.3g}"
     elif not gain_ok:
-        reason = f"gain {fitted_gain:.3g} of the fit not positive ({gain_channel})"
+        reason = f"gain {g:.3g} of the fit not > 0 and finite ({gain_channel})"
     else:
         reason = ""
     if not np.isfinite(matrix).all():

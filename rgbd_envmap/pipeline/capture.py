@@ -22,6 +22,11 @@ matrix (current camera colours → reference colours). Per ingested depth packet
 
 With ``colour_correction=False`` every frame is projected uncorrected (the paper's Fig. 4 left);
 ``freeze=True`` keeps the map as it is (a static scene already captured) and only tracks the matrix.
+
+Where the colour frames' exposures are known (exposure time × ISO, the reference frame's and the
+current one's), the matrix's overall gain is their ratio and only its white balance is fitted
+(``fixed_gain``, docs/design/colour_correction.md): a change of the scene's light then reaches the map
+instead of being taken for an exposure change. Unknown exposure: the paper's fit.
 """
 
 from __future__ import annotations
@@ -43,6 +48,7 @@ from rgbd_envmap.colour import (
     ccm_from_sums,
     estimate_ccm,
 )
+from rgbd_envmap.colour.ccm import GAIN_CHANNELS
 from rgbd_envmap.depth.reliability import discontinuity_passed
 from rgbd_envmap.errors import DTypeError, RangeError
 from rgbd_envmap.envmap.map import MAP_BYTES_PER_PIXEL, MAX_MAP_PIXELS, EnvironmentMap
@@ -80,6 +86,11 @@ class CaptureConfig:
     ccm_method: str = "ridge"
     max_mse: float = 5e-2
     min_pairs: int = 500
+    #: with the exposures known (the reference frame's and the frame's), the matrix's gain along this
+    #: channel is their ratio and only the white balance is fitted: "green" (a white balance keeps the
+    #: green gain at 1), "luminance" (:data:`rgbd_envmap.colour.ccm.GAIN_CHANNELS`), or None (the gain
+    #: is fitted too, the paper; as when an exposure is unknown).
+    fixed_gain: str | None = "green"
     update: UpdateConfig = field(default_factory=UpdateConfig)
     #: which hole-filled pixels go into the map: "all" (paper), "plane_consistent", "none". With the
     #: edge margin on, "plane_consistent" measures no better than "all".
@@ -109,6 +120,8 @@ class CaptureConfig:
         check_flag(self.freeze, "CaptureConfig.freeze")
         check_method(self.filled_pixels, FILLED_PIXEL_MODES, "filled_pixels")
         check_method(self.ccm_method, CCM_METHODS, "ccm_method")
+        if self.fixed_gain is not None:
+            check_method(self.fixed_gain, GAIN_CHANNELS, "CaptureConfig.fixed_gain")
         # What estimate_ccm would reject per frame, rejected once here (the fused fit skips its checks).
         check_number(self.max_mse, "CaptureConfig.max_mse", low=0.0)
         check_positive_int(self.min_pairs, "CaptureConfig.min_pairs")
@@ -149,9 +162,12 @@ class EnvironmentCapture:
         self.em = EnvironmentMap(config.height, config.width, origin)
         self.matrix = np.eye(3)
         self.has_reference = False
+        #: exposure time × ISO of the reference frame, None where unknown.
+        self.reference_exposure: float | None = None
 
     def process(self, raw: RGBDFrame, reliable: np.ndarray, filled: RGBDFrame, *, across_edges: np.ndarray | None = None,
-                timer: StageTimer | None = None, matrix: np.ndarray | None = None) -> CaptureStep:
+                timer: StageTimer | None = None, matrix: np.ndarray | None = None,
+                exposure: float | None = None) -> CaptureStep:
         """Process one ingested frame: ``raw`` (before hole filling) with its ``reliable`` mask, and
         ``filled`` (after hole filling), both in the current camera's colour space. ``timer`` records
         the stages "Collect paired samples", "Compute colour correction matrix" (the fit and its MSE)
@@ -163,14 +179,20 @@ class EnvironmentCapture:
         origin). Elsewhere their depth, somewhere between a foreground and a background, would put
         them in free space, and seen from the origin they would cover what lies behind. Near the
         origin the device sees what the origin sees, and the trusted rule relies on exactly that
-        (docs/design/hole_filling.md). None: every filled pixel goes in (the paper)."""
+        (docs/design/hole_filling.md). None: every filled pixel goes in (the paper).
+
+        ``exposure``: the frame's exposure time × ISO (:attr:`rgbd_envmap.types.ColourPacket.exposure`),
+        None where unknown. With it and the reference frame's known, the matrix's gain is their ratio
+        (``config.fixed_gain``)."""
         cfg = self.config
+        exposure = check_number(exposure, "exposure", low=0.0, low_open=True, optional=True)
         t = timer or _NO_TIMER
         ts = raw.timestamp_ns
         if not self.has_reference:
             if not filled.known.any():
                 return CaptureStep(ts, False, None, False, "no known pixels for a reference frame", 0, self.matrix.copy(), None)
             self.has_reference = True
+            self.reference_exposure = exposure
             stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t, across_edges)
             return CaptureStep(ts, True, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
         if matrix is not None and not cfg.freeze:  # a known correction (a bracketed frame): no fit, no gate
@@ -179,6 +201,9 @@ class EnvironmentCapture:
         if not cfg.colour_correction:
             stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t, across_edges)
             return CaptureStep(ts, False, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
+        known = None if cfg.fixed_gain is None or exposure is None or self.reference_exposure is None \
+            else self.reference_exposure / exposure
+        gain = {} if known is None else {"known_gain": known, "gain_channel": cfg.fixed_gain}
         if cfg.ccm_method in SUMS_CCM_METHODS:
             # The fit needs only the pairs' normal-equation sums: accumulated in the pair pass
             # (bit-identical to collecting the pairs and summing them), so no pair array is stored.
@@ -187,7 +212,7 @@ class EnvironmentCapture:
                                                  raw.rgb, cfg.pair_max_depth_diff_m, threads=self.threads)
             with t.stage("Compute colour correction matrix"):
                 ccm = ccm_from_sums(*sums, cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs,
-                                    max_condition=DEFAULT_MAX_CONDITION, noise_std=None, ridge=DEFAULT_RIDGE)
+                                    max_condition=DEFAULT_MAX_CONDITION, noise_std=None, ridge=DEFAULT_RIDGE, **gain)
         else:
             with t.stage("Collect paired samples"):
                 # collect_pairs(em, frame_points(raw.depth_m, reliable, …), raw.rgb[reliable]) in one pass.
@@ -195,7 +220,7 @@ class EnvironmentCapture:
                                        cfg.pair_max_depth_diff_m)
                 n_found = len(src)
             with t.stage("Compute colour correction matrix"):
-                ccm = estimate_ccm(src, dst, method=cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs)
+                ccm = estimate_ccm(src, dst, method=cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs, **gain)
         if not ccm.accepted:
             return CaptureStep(ts, False, ccm, False, ccm.reason, n_found, self.matrix.copy(), None)
         self.matrix = np.array(ccm.matrix, dtype=np.float64)

@@ -594,7 +594,9 @@ class Pipeline:
                     filled = hdr_frame(filled, scale, self._low_confidence(filled.rgb, bracket))
         live_matrix = self.capture.matrix
         self._bracket_known = bracket and self.capture.has_reference
-        out = self._capture_and_relight(frame, filled, reliable=reliable, across_edges=across)
+        # a bracket frame's colours are at the live exposure (the matrix's) by now
+        exposure = self._matrix_exposure if bracket else colour.exposure
+        out = self._capture_and_relight(frame, filled, reliable=reliable, across_edges=across, exposure=exposure)
         self._bracket_known = False
         if bracket:  # a bracket frame's fit does not steer the live frames' correction (nor their composites)
             self.capture.matrix = live_matrix
@@ -613,10 +615,11 @@ class Pipeline:
 
     def _capture_and_relight(self, frame: RGBDFrame, filled: RGBDFrame, *, reliable: np.ndarray | None = None,
                              depth_m: np.ndarray | None = None, known: np.ndarray | None = None,
-                             across_edges: np.ndarray | None = None) -> DepthStep:
+                             across_edges: np.ndarray | None = None, exposure: float | None = None) -> DepthStep:
         """Reliability (unless given), correction + EM update, SH and shading of one ingested frame.
         ``depth_m`` / ``known``: the sensor's own measurement when ``frame`` is already a merge of it;
-        ``across_edges``: the hole filling's flags (:class:`rgbd_envmap.ingest.tango.TangoIngestResult`)."""
+        ``across_edges``: the hole filling's flags (:class:`rgbd_envmap.ingest.tango.TangoIngestResult`);
+        ``exposure``: the colour frame's exposure time × ISO, None where unknown."""
         from rgbd_envmap.depth import mark_reliable
 
         t = self.timer
@@ -624,7 +627,7 @@ class Pipeline:
             with t.stage("Mark reliable RGB-D"):
                 reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=self.config.ingest.reliability_method)
         fixed = {"matrix": self.capture.matrix} if self._bracket_known else {}
-        step = self.capture.process(frame, reliable, filled, across_edges=across_edges, timer=t, **fixed)
+        step = self.capture.process(frame, reliable, filled, across_edges=across_edges, timer=t, exposure=exposure, **fixed)
         sh_updated = False
         if not self.fixed_lighting and (step.projected or not self.has_lighting):
             if self.capture.em.valid.any():

@@ -48,7 +48,7 @@ def test_a_neutral_light_change_is_not_absorbed_with_the_green_gain_known(method
     np.testing.assert_allclose(fixed.matrix, true, rtol=1e-6, atol=1e-9)
     # fitted / known gain: the map's brightness over the frame's at the same surfaces
     assert fixed.fitted_gain / (1.0 / exposure) == pytest.approx(1.0 / light, rel=1e-6)
-    assert math.isnan(free.fitted_gain)
+    assert free.fitted_gain is None
 
 
 def test_the_luminance_gain_is_off_by_the_white_balance_luminance():
@@ -102,7 +102,7 @@ def test_the_sums_path_equals_estimate_ccm_and_colour_science_gets_the_same_gain
 def test_a_fit_with_a_non_positive_gain_is_rejected():
     src, dst = _pairs(1.0, (1.0, 1.0, 1.0))
     r = estimate_ccm(src, -dst, "least_squares", known_gain=1.0)
-    assert not r.accepted and r.reason.startswith("gain ") and "not positive" in r.reason
+    assert not r.accepted and r.reason.startswith("gain ") and "not > 0 and finite" in r.reason
     assert r.fitted_gain == pytest.approx(-1.0)
     # the same pairs without a known gain: a (negative) matrix that passes the paper's gate
     assert estimate_ccm(src, -dst, "least_squares").accepted
@@ -117,7 +117,7 @@ def test_rejected_and_degenerate_fits_keep_their_reasons_with_a_known_gain():
     assert not r.accepted and ("rank-deficient" in r.reason or "ill-conditioned" in r.reason)
     nan = np.full((600, 3), np.nan)
     r = estimate_ccm(nan, nan, known_gain=2.0)
-    assert not r.accepted and np.array_equal(r.matrix, np.eye(3))
+    assert not r.accepted and np.array_equal(r.matrix, np.eye(3)) and r.fitted_gain is None
 
 
 def test_matrix_gain_of_exposure_times_white_balance():
@@ -155,3 +155,5 @@ def test_ccm_result_compares_its_fitted_gain():
     assert a == CCMResult(np.eye(3), 0.0, 10, True, "", "ridge", 1.0, 2.0)
     assert a != CCMResult(np.eye(3), 0.0, 10, True, "", "ridge", 1.0, 3.0)
     assert CCMResult(np.eye(3), 0.0, 10, True, "", "ridge") == CCMResult(np.eye(3), 0.0, 10, True, "", "ridge")
+    assert CCMResult(np.eye(3), 0.0, 10, True, "", "ridge").fitted_gain is None
+    assert a != CCMResult(np.eye(3), 0.0, 10, True, "", "ridge", 1.0)
