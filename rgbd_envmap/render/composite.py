@@ -82,21 +82,7 @@ def composite(frame_srgb: np.ndarray, layer: Layer, *, ccm_inverse: np.ndarray |
     Returns:
         (H, W, 3) uint8 sRGB, a new array; equal to ``frame_srgb`` bit for bit where the layer is empty.
     """
-    frame = check_array(frame_srgb, "frame_srgb", shape=("H", "W", 3), dtype=np.uint8)
-    if not isinstance(layer, Layer):
-        raise DTypeError(f"layer: expected a Layer, got {type(layer).__name__}")
-    if frame.shape[:2] != layer.shape:
-        raise ShapeError(f"layer: expected the frame's size {frame.shape[:2]}, got {layer.shape}")
-    grey_level = float(shadow_grey)
-    if not np.isfinite(grey_level) or grey_level < 0.0:
-        raise RangeError(f"shadow_grey: expected a finite value >= 0, got {shadow_grey}")
-    if ccm_inverse is None:
-        m = np.eye(3)
-        use_m = False
-    else:
-        m = check_array(ccm_inverse, "ccm_inverse", shape=(3, 3), dtype=("float", "int"), finite=True)
-        m = np.ascontiguousarray(m, dtype=np.float64)
-        use_m = True
+    frame, grey_level, m, use_m = _checked_inputs(frame_srgb, {"layer": layer}, ccm_inverse, shadow_grey)
     out = frame.copy()
     if layer.bbox is None:
         return out
@@ -105,6 +91,23 @@ def composite(frame_srgb: np.ndarray, layer: Layer, *, ccm_inverse: np.ndarray |
     kernels.composite(out, layer.colour, layer.mask, layer.plane_alpha, r0, r1, c0, c1, m, use_m, grey,
                       srgb8_to_linear_lut(), *srgb8_encoder())
     return out
+
+
+def _checked_inputs(frame_srgb, layers: dict, ccm_inverse, shadow_grey) -> tuple[np.ndarray, float, np.ndarray, bool]:
+    """The composites' checks: (frame, grey level, ccm_inverse as float64 (identity if None), given)."""
+    frame = check_array(frame_srgb, "frame_srgb", shape=("H", "W", 3), dtype=np.uint8)
+    for name, lay in layers.items():
+        if not isinstance(lay, Layer):
+            raise DTypeError(f"{name}: expected a Layer, got {type(lay).__name__}")
+        if frame.shape[:2] != lay.shape:
+            raise ShapeError(f"{name}: expected the frame's size {frame.shape[:2]}, got {lay.shape}")
+    grey_level = float(shadow_grey)
+    if not np.isfinite(grey_level) or grey_level < 0.0:
+        raise RangeError(f"shadow_grey: expected a finite value >= 0, got {shadow_grey}")
+    if ccm_inverse is None:
+        return frame, grey_level, np.eye(3), False
+    m = check_array(ccm_inverse, "ccm_inverse", shape=(3, 3), dtype=("float", "int"), finite=True)
+    return frame, grey_level, np.ascontiguousarray(m, dtype=np.float64), True
 
 
 def composite_differential(frame_srgb: np.ndarray, object_layer: Layer, receiver_layer: Layer, *,
@@ -125,25 +128,11 @@ def composite_differential(frame_srgb: np.ndarray, object_layer: Layer, receiver
     Returns:
         (H, W, 3) uint8 sRGB, a new array; equal to ``frame_srgb`` where both layers are empty.
     """
-    frame = check_array(frame_srgb, "frame_srgb", shape=("H", "W", 3), dtype=np.uint8)
-    for name, lay in (("object_layer", object_layer), ("receiver_layer", receiver_layer)):
-        if not isinstance(lay, Layer):
-            raise DTypeError(f"{name}: expected a Layer, got {type(lay).__name__}")
-        if frame.shape[:2] != lay.shape:
-            raise ShapeError(f"{name}: expected the frame's size {frame.shape[:2]}, got {lay.shape}")
-    grey_level = float(shadow_grey)
-    if not np.isfinite(grey_level) or grey_level < 0.0:
-        raise RangeError(f"shadow_grey: expected a finite value >= 0, got {shadow_grey}")
-    if ccm_inverse is None:
-        m_inv = m = np.eye(3)
-        use_m = False
-    else:
-        m_inv = check_array(ccm_inverse, "ccm_inverse", shape=(3, 3), dtype=("float", "int"), finite=True)
-        m_inv = np.ascontiguousarray(m_inv, dtype=np.float64)
-        m = np.linalg.inv(m_inv)
-        if not np.isfinite(m).all():
-            raise NonFiniteError("ccm_inverse: expected an invertible matrix")
-        use_m = True
+    frame, grey_level, m_inv, use_m = _checked_inputs(
+        frame_srgb, {"object_layer": object_layer, "receiver_layer": receiver_layer}, ccm_inverse, shadow_grey)
+    m = np.linalg.inv(m_inv) if use_m else m_inv
+    if not np.isfinite(m).all():
+        raise NonFiniteError("ccm_inverse: expected an invertible matrix")
     out = frame.copy()
     boxes = [b for b in (object_layer.bbox, receiver_layer.bbox) if b is not None]
     if not boxes:
