@@ -78,8 +78,8 @@ SKIP_REASONS = {
     "depth_pose_frozen": "a depth pose bit for bit equal to the previous depth packet's (a frozen tracker)",
     "colour_frozen_frame": "a colour frame repeating the previous image: shown without the object, not paired",
     "depth_no_colour": "a depth packet with no colour frame within max_colour_lag_ms (nor colour_fallback_lag_ms)",
-    "depth_inconsistent_with_map": "a depth packet whose points, placed by its pose, miss the map's surfaces "
-                                   "(pose_check.map_min_consistent: a relocalisation error)",
+    "depth_inconsistent_with_map": "a depth packet after a pose jump whose reported pose does not fit the map "
+                                   "better than the pose with the jump undone (pose_check.map_check: a relocalisation error)",
 }
 
 #: stage names, in pipeline order, and the paper's Table 1 figure for each (None: no counterpart).
