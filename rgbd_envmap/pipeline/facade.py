@@ -207,7 +207,6 @@ class Pipeline:
         self._last_colour: tuple[ColourPacket, np.ndarray] | None = None
         #: bracketed colour frames (HDR capture): paired with depth for the map, not composited.
         self.bracketed_frames = 0
-        self._bracket_known = False
         # exposure time × ISO of the live frame whose correction matrix is in force (HDR capture)
         self._matrix_exposure: float | None = None
         self.depth_steps = 0
@@ -593,11 +592,11 @@ class Pipeline:
                 with t.stage("HDR exposure + clip flags"):
                     filled = hdr_frame(filled, scale, self._low_confidence(filled.rgb, bracket))
         live_matrix = self.capture.matrix
-        self._bracket_known = bracket and self.capture.has_reference
         # a bracket frame's colours are at the live exposure (the matrix's) by now
         exposure = self._matrix_exposure if bracket else colour.exposure
+        # A bracket frame is fitted and gated like a live one (projecting it with the matrix in force,
+        # ungated, broke the matrix's chain after a dropout burst: docs/design/hdr.md).
         out = self._capture_and_relight(frame, filled, reliable=reliable, across_edges=across, exposure=exposure)
-        self._bracket_known = False
         if bracket:  # a bracket frame's fit does not steer the live frames' correction (nor their composites)
             self.capture.matrix = live_matrix
         elif out.capture.reference or (out.capture.ccm is not None and out.capture.ccm.accepted):
@@ -626,8 +625,7 @@ class Pipeline:
         if reliable is None:
             with t.stage("Mark reliable RGB-D"):
                 reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=self.config.ingest.reliability_method)
-        fixed = {"matrix": self.capture.matrix} if self._bracket_known else {}
-        step = self.capture.process(frame, reliable, filled, across_edges=across_edges, timer=t, exposure=exposure, **fixed)
+        step = self.capture.process(frame, reliable, filled, across_edges=across_edges, timer=t, exposure=exposure)
         sh_updated = False
         if not self.fixed_lighting and (step.projected or not self.has_lighting):
             if self.capture.em.valid.any():
