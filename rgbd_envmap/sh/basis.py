@@ -145,7 +145,11 @@ def basis(dirs: np.ndarray, bands: int = 5) -> np.ndarray:
     """
     bands = check_bands(bands)
     d = check_array(dirs, "dirs", shape=("*", 3), dtype=("float", "int")).astype(np.float64)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        # scaled by the largest component first: the squares of a finite 1e160 (or 1e-170) direction
+        # would overflow (underflow) the norm
+        big = np.max(np.abs(d), axis=-1)
+        d = d / np.where(np.isfinite(big) & (big > 0.0), big, 1.0)[..., None]
         norm = np.sqrt(np.einsum("...i,...i->...", d, d))
         bad = ~np.isfinite(norm) | (norm == 0.0)
         d = d / np.where(bad, 1.0, norm)[..., None]
