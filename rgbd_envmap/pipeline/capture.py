@@ -166,8 +166,7 @@ class EnvironmentCapture:
         self.reference_exposure: float | None = None
 
     def process(self, raw: RGBDFrame, reliable: np.ndarray, filled: RGBDFrame, *, across_edges: np.ndarray | None = None,
-                timer: StageTimer | None = None, matrix: np.ndarray | None = None,
-                exposure: float | None = None) -> CaptureStep:
+                timer: StageTimer | None = None, exposure: float | None = None) -> CaptureStep:
         """Process one ingested frame: ``raw`` (before hole filling) with its ``reliable`` mask, and
         ``filled`` (after hole filling), both in the current camera's colour space. ``timer`` records
         the stages "Collect paired samples", "Compute colour correction matrix" (the fit and its MSE)
@@ -195,9 +194,6 @@ class EnvironmentCapture:
             self.reference_exposure = exposure
             stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t, across_edges)
             return CaptureStep(ts, True, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
-        if matrix is not None and not cfg.freeze:  # a known correction (a bracketed frame): no fit, no gate
-            stats = self._timed_project(raw, filled, np.asarray(matrix, np.float64), t, across_edges)
-            return CaptureStep(ts, False, None, True, "", 0, self.matrix.copy(), stats)
         if not cfg.colour_correction:
             stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t, across_edges)
             return CaptureStep(ts, False, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
