@@ -27,7 +27,7 @@ from rgbd_envmap.checks import check_finite, check_number
 from rgbd_envmap.errors import RangeError
 from rgbd_envmap.lights.maps import check_inputs, luminance
 
-__all__ = ["DirectIndirect", "split_direct_indirect"]
+__all__ = ["DirectIndirect", "direct_mask", "split_direct_indirect"]
 
 
 @dataclass(frozen=True)
@@ -82,33 +82,56 @@ def _threshold(y: np.ndarray, e: np.ndarray, target: float) -> float:
     return float(yb[order[m]])
 
 
+def direct_mask(radiance: object, tau: float, valid: object = None) -> tuple[np.ndarray, float]:
+    """The direct part of a split alone: ((H, W) bool, the threshold) for an equirect map (H, W, 3),
+    a fraction ``tau`` ∈ [0, 1] and ``valid`` (H, W) bool or None, with the checks of
+    :func:`split_direct_indirect` (which builds on it) and none of its copies: what a caller that keeps
+    its own map needs per frame."""
+    tau = check_number(tau, "tau", low=0.0, high=1.0)
+    m = check_inputs(radiance, valid)
+    direct, threshold, _, _ = _direct(m, tau)
+    return direct, threshold
+
+
+def _direct(m, tau: float) -> tuple[np.ndarray, float, np.ndarray, float]:
+    """(direct mask, threshold, per-pixel energy Y · Ω (H, W), total energy) of checked inputs."""
+    rad = m.radiance
+    H, W = rad.shape[:2]
+    y = luminance(rad)
+    ok = m.valid
+    where = "" if ok is None else " (at valid pixels)"
+    # a NaN or infinite channel makes the (positive-weighted) luminance non-finite
+    if not np.isfinite(y if ok is None else y[ok]).all():
+        check_finite(rad if ok is None else rad[ok], "radiance" + where)
+    low = float(rad.min()) if ok is None else float(np.min(np.where(ok[..., None], rad, 0), initial=0.0))
+    if low < 0:
+        raise RangeError(f"radiance: expected values ≥ 0{where}, got a smallest value of {low}")
+    e = y * m.row_omega[:, None]
+    yv, ev = (y.ravel(), e.ravel()) if ok is None else (y[ok], e[ok])
+    total = float(ev.sum())
+    if tau > 0 and total > 0:
+        threshold = _threshold(yv, ev, tau * total * (1 - 1e-12))
+        direct = y >= threshold
+        if ok is not None:
+            direct &= ok
+        return direct, threshold, e, total
+    return np.zeros((H, W), bool), np.inf, e, total
+
+
 def split_direct_indirect(radiance: object, tau: float, valid: object = None) -> DirectIndirect:
     """Split an equirect map (H, W, 3) into the brightest pixels holding a fraction ``tau`` ∈ [0, 1]
     of its luminance energy and the rest (see the module docstring). ``valid`` (H, W) bool or None.
     NaN / infinite / negative radiance at valid pixels raise the typed errors; no valid pixel raises
-    InvalidInputError."""
+    InvalidInputError. :func:`direct_mask` gives the direct pixels alone, faster."""
     tau = check_number(tau, "tau", low=0.0, high=1.0)
     m = check_inputs(radiance, valid)
     rad = m.radiance
-    H, W = rad.shape[:2]
-    ok = np.ones((H, W), bool) if m.valid is None else m.valid
-    vals = rad if m.valid is None else rad[ok]
-    check_finite(vals, "radiance" + ("" if m.valid is None else " (at valid pixels)"))
-    if vals.size and vals.min() < 0:
-        raise RangeError(f"radiance: expected values ≥ 0, got a smallest value of {vals.min()}")
-    y = luminance(rad)
-    e = y * m.row_omega[:, None]
-    yv, ev = (y.ravel(), e.ravel()) if m.valid is None else (y[ok], e[ok])
-    total = float(ev.sum())
-    direct = np.zeros((H, W), bool)
-    threshold = np.inf
-    if tau > 0 and total > 0:
-        threshold = _threshold(yv, ev, tau * total * (1 - 1e-12))
-        direct = ok & (y >= threshold)
+    direct, threshold, e, total = _direct(m, tau)
+    ok = m.valid
     indirect = rad.copy()
     indirect[direct] = 0
     # per channel Σ L·Ω of each part: row sums (float64) times the row's solid angle
-    rest = indirect if m.valid is None else np.where(ok[..., None], indirect, np.zeros((), rad.dtype))
+    rest = indirect if ok is None else np.where(ok[..., None], indirect, np.zeros((), rad.dtype))
     i_e = np.sum(rest, axis=1, dtype=np.float64).T @ m.row_omega
     rows = np.nonzero(direct)[0]
     d_e = np.sum(rad[direct].astype(np.float64) * m.row_omega[rows, None], axis=0)

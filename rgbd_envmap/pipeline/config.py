@@ -21,6 +21,7 @@ from rgbd_envmap.ingest.kinect import KinectMergeConfig
 from rgbd_envmap.ingest.tango import TangoIngestConfig
 from rgbd_envmap.pipeline.capture import CaptureConfig
 from rgbd_envmap.prt import MAX_PRT_DIRS
+from rgbd_envmap.lights import METHODS as _LIGHT_SAMPLERS
 from rgbd_envmap.render.composite import COMPOSITE_MODES
 from rgbd_envmap.render.raster import BACKENDS
 from rgbd_envmap.sh import check_bands
@@ -83,6 +84,12 @@ class ObjectConfig:
         check_number(self.plane_resolution, "object.plane_resolution", low=2, high=MAX_PLANE_RESOLUTION, integer=True)
 
 
+#: the light samplers the differential composite can use (those of rgbd_envmap.lights).
+LIGHT_METHODS = tuple(_LIGHT_SAMPLERS)
+#: how the differential composite shades the object (RenderConfig.object_shading).
+OBJECT_SHADING = ("prt", "lights")
+
+
 @dataclass(frozen=True)
 class RenderConfig:
     """Compositing: ``enabled=False`` skips the object entirely (capture only)."""
@@ -95,8 +102,16 @@ class RenderConfig:
     #: 000 / 001; docs/design/differential.md; the default: lower composite error on the lit office's
     #: reference frames) or "paper003" (PRT-shaded object + shadow plane alpha, paper 003 §7).
     composite: str = "differential"
-    #: differential: lights asked of the Q2-Tree sampler on the map's direct part (12 + 3k ≥ n given).
+    #: differential: lights asked of the sampler on the map's direct part (the Q2-Tree gives 12 + 3k ≥ n).
     lights: int = 12
+    #: differential: the sampler of the direct part, a method of :func:`rgbd_envmap.lights.sample_lights`
+    #: ("q2tree", "pharr" or "hemigon"; the stateful ones keep their state from relight to relight).
+    light_method: str = "q2tree"
+    #: differential: how the object itself is shaded. "prt": PRT of the whole map's SH (paper 003; its
+    #: transfer self-shadows softly), the lights only cast its shadows onto the real surfaces; "lights":
+    #: the lights with a self-shadow ray per vertex plus PRT of the indirect SH (docs/design/differential.md
+    #: compares the two).
+    object_shading: str = "prt"
     #: differential: the fraction τ of the map's energy given to the lights (paper 000 §4.2), the rest to SH.
     tau: float = 0.5
     #: differential: the real geometry: map points within this distance of the object's centre, one per
@@ -113,6 +128,8 @@ class RenderConfig:
         check_number(self.shadow_grey, "render.shadow_grey", low=0.0, high=1.0)
         check_method(self.composite, COMPOSITE_MODES, "render.composite")
         check_number(self.lights, "render.lights", low=1, high=10_000, integer=True)
+        check_method(self.light_method, LIGHT_METHODS, "render.light_method")
+        check_method(self.object_shading, OBJECT_SHADING, "render.object_shading")
         check_number(self.tau, "render.tau", low=0.0, high=1.0)
         check_number(self.receiver_radius_m, "render.receiver_radius_m", low=0.0, low_open=True, high=10.0)
         check_number(self.receiver_spacing_m, "render.receiver_spacing_m", low=1e-4, high=1.0)

@@ -88,7 +88,7 @@ STAGES = (
     "YUV420 to linear RGB", "Point cloud to RGB-D", "Denoise depth", "Mark reliable RGB-D", "HDR exposure + clip flags",
     "Hole filling RGB-D", "Collect paired samples", "Compute colour correction matrix", "Calculate MSE", "Project sample to EM*",
     "EM translation", "Calculate SH coefficients*", "Select SH bands", "Lights from the map", "Receiver geometry",
-    "Shade object (PRT)", "Decode colour frame", "Rasterise", "Composite",
+    "Shade object (PRT)", "Shade receivers", "Decode colour frame", "Rasterise", "Composite",
 )
 DEPTH_TOTAL = "depth_frame_total"
 COLOUR_TOTAL = "colour_frame_total"
@@ -246,6 +246,8 @@ class Pipeline:
         self._diff_base: np.ndarray | None = None
         self._receiver_faces = np.zeros((0, 3), np.int32)
         self._relights_since_geometry = 0
+        self._light_state = None  # the sampler's state (Q2-Tree, Hemigon), relight to relight
+        self._direct_table = None
         if config.render.enabled or config.shading.auto_bands:
             self._load_object()
         if lighting is None and config.shading.lighting_file is not None:
@@ -669,8 +671,7 @@ class Pipeline:
     def _split_lighting(self, em: EnvironmentMap) -> None:
         """The map's direct part as lights with positions, the indirect rest as SH (paper 000 §4.2):
         ``self.lights`` and ``self.coeffs_indirect`` = the coefficients minus the direct pixels' own."""
-        from rgbd_envmap.geometry import equirect_directions, equirect_solid_angles
-        from rgbd_envmap.lights import sample_lights, split_direct_indirect
+        from rgbd_envmap.lights import HemigonState, LightSet, Q2TreeState, direct_mask, sample_lights
 
         rc = self.config.render
         # On every LIGHT_MAP_STRIDE-th row and column (a 16th of the pixels: the split's histogram and the
@@ -680,27 +681,39 @@ class Pipeline:
         sub = (slice(k // 2, None, k), slice(k // 2, None, k))
         radiance = np.maximum(em.radiance[sub], 0.0)
         valid = np.ascontiguousarray(em.valid[sub])
-        H, W = valid.shape
-        split = split_direct_indirect(radiance, rc.tau, valid=valid)
+        direct, _ = direct_mask(radiance, rc.tau, valid=valid)
         ind = self.coeffs.copy()
         self.lights = None
-        if split.direct.any():
-            rows, cols = np.nonzero(split.direct)
-            dirs = equirect_directions(H, W)[rows, cols]
-            omega = equirect_solid_angles(H, W)[rows, cols]
-            rad = radiance[rows, cols].astype(np.float64) * omega[:, None]
-            ind -= sh.basis(dirs, self.sh_bands_computed).T @ rad
-            self.lights = sample_lights(radiance, rc.lights, "q2tree", valid=split.direct,
-                                        depth_m=np.ascontiguousarray(em.depth_m[sub]), origin=em.origin)
+        if direct.any():
+            # the direct pixels' own SH coefficients, from a table of the sub-grid's basis × solid angle
+            table = self._direct_basis(direct.shape, self.sh_bands_computed)
+            flat = np.flatnonzero(direct)
+            ind -= table[flat].T.astype(np.float64) @ radiance.reshape(-1, 3)[flat].astype(np.float64)
+            if self._light_state is None and rc.light_method != "pharr":
+                self._light_state = Q2TreeState() if rc.light_method == "q2tree" else HemigonState()
+            self.lights = sample_lights(radiance, rc.lights, rc.light_method, valid=direct,
+                                        depth_m=np.ascontiguousarray(em.depth_m[sub]), origin=em.origin,
+                                        state=self._light_state)
             keep = self.lights.power.max(axis=1) > 0
             if not keep.all():
-                from rgbd_envmap.lights import LightSet
-
                 L = self.lights
                 self.lights = LightSet(L.directions[keep], L.power[keep], L.method,
                                        positions=None if L.positions is None else L.positions[keep],
                                        origin=L.origin)
         self.coeffs_indirect = ind
+
+    def _direct_basis(self, shape: tuple[int, int], bands: int) -> np.ndarray:
+        """(H·W, bands²) float32: each pixel's SH basis times its solid angle on the light split's
+        sub-grid (computed once per grid and band count)."""
+        from rgbd_envmap.geometry import equirect_directions, equirect_solid_angles
+
+        key = (shape, bands)
+        if self._direct_table is None or self._direct_table[0] != key:
+            H, W = shape
+            y = sh.basis(equirect_directions(H, W).reshape(-1, 3), bands)
+            y *= equirect_solid_angles(H, W).reshape(-1, 1)
+            self._direct_table = (key, np.ascontiguousarray(y, np.float32))
+        return self._direct_table[1]
 
     def _use_coefficients(self, timer: StageTimer) -> None:
         """Band choice and shading of the object from ``self.coeffs``."""
@@ -718,14 +731,17 @@ class Pipeline:
         from rgbd_envmap import prt
 
         n = self.bands * self.bands
-        with timer.stage("Shade object (PRT)"):
-            if self._shade_out is None:
-                self._shade_out = np.empty((len(self._transfer), 3), np.float32)
-            # A fresh buffer per call, not the one the renderer may still hold: swap two buffers.
-            self._shade_out, out = self.colours, self._shade_out
-            self.colours = prt.shade(self._transfer[:, :n], self.coeffs[:n], self._object.albedo, out=out)
-            self.plane_alpha = prt.shadow_alpha(self._plane, self.coeffs[:n])
-        if self._differential and self.coeffs_indirect is not None:
+        differential = self._differential and self.coeffs_indirect is not None
+        if not differential or self.config.render.object_shading == "prt":
+            with timer.stage("Shade object (PRT)"):
+                if self._shade_out is None:
+                    self._shade_out = np.empty((len(self._transfer), 3), np.float32)
+                # A fresh buffer per call, not the one the renderer may still hold: swap two buffers.
+                self._shade_out, out = self.colours, self._shade_out
+                self.colours = prt.shade(self._transfer[:, :n], self.coeffs[:n], self._object.albedo, out=out)
+                if not differential:  # the differential composite's receivers replace the plane
+                    self.plane_alpha = prt.shadow_alpha(self._plane, self.coeffs[:n])
+        if differential:
             self._shade_differential(timer, n)
 
     def _shade_differential(self, timer: StageTimer, n: int) -> None:
@@ -754,9 +770,11 @@ class Pipeline:
                 shader.set_receivers(mesh, self.sh_bands_computed)
             self._relights_since_geometry = 0
         self._relights_since_geometry += 1
-        with timer.stage("Shade object (PRT)"):
+        with timer.stage("Shade receivers" if rc.object_shading == "prt" else "Shade object (PRT)"):
+            # "prt": the object keeps its PRT colours (self.colours), which also light the receivers
+            fixed = self.colours if rc.object_shading == "prt" else None
             self.colours, self.receiver_ratio = shader.shade(self.lights, self.coeffs_indirect[:n], self._transfer,
-                                                             self._object.albedo)
+                                                             self._object.albedo, object_colours=fixed)
             self._receiver_faces = shader.active_faces(self.receiver_ratio)
 
     def _colour_step(self, packet: ColourPacket, srgb8: np.ndarray) -> ColourStep:

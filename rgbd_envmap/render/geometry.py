@@ -114,16 +114,28 @@ def receiver_mesh(depth_m: object, valid: object, origin: object, centre: object
     cols = np.arange(stride // 2, W, stride)
     good = ok[np.ix_(rows, cols)]
     d = dep[np.ix_(rows, cols)]
-    ri, ci = np.nonzero(good & np.isfinite(d) & (d > 0))
+    # A point within radius of the centre is within radius of the centre's distance along its own
+    # direction (the triangle inequality): that cuts the candidates before any direction is formed.
+    dc = float(np.linalg.norm(c - o))
+    with np.errstate(invalid="ignore"):
+        cand = good & np.isfinite(d) & (d > 0) & (np.abs(d - dc) <= radius * (1 + 1e-6) + 1e-9)
+    ri, ci = np.nonzero(cand)
     dirs = equirect_directions(H, W)[rows[ri], cols[ci]].astype(np.float64)
     pts = o + dirs * d[ri, ci].astype(np.float64)[:, None]
     near = np.sum((pts - c) ** 2, axis=1) <= radius * radius
     pts, dirs = pts[near], dirs[near]
     if len(pts) < 3:
         return ReceiverMesh.empty()
-    # one point per cube of side spacing (the first in map order: deterministic)
+    # one point per cube of side spacing (the first in map order: deterministic), the cube's three
+    # indices packed into one int64 key (a 1-D sort; rows of three sort ten times slower)
     cell = np.floor((pts - c) / spacing).astype(np.int64)
-    _, first = np.unique(cell, axis=0, return_index=True)
+    off = int(np.abs(cell).max()) + 1
+    base = 2 * off + 1
+    if base < 2 ** 20:
+        key = ((cell[:, 0] + off) * base + (cell[:, 1] + off)) * base + (cell[:, 2] + off)
+        _, first = np.unique(key, return_index=True)
+    else:  # radius / spacing too large to pack
+        _, first = np.unique(cell, axis=0, return_index=True)
     first.sort()
     pts, dirs = pts[first], dirs[first]
     if len(pts) < 3:

@@ -302,9 +302,9 @@ def test_composite_differential_reduces_to_paper003_without_receivers_and_to_the
     assert np.abs(diff).max() <= 1 and (diff != 0).mean() < 0.02
 
 
-def test_shader_reuses_the_rays_of_a_light_that_moved_less_than_cache_m():
+def test_shader_reuses_the_rays_of_a_light_that_moved_less_than_cache_deg():
     v, f = icosphere(0.04, [0.0, 0.0, 0.05], 2)
-    shader = DifferentialShader(v, f, (v - [0, 0, 0.05]) / 0.04, samples=8, cache_m=0.01)
+    shader = DifferentialShader(v, f, (v - [0, 0, 0.05]) / 0.04, samples=8, cache_deg=0.5)
     pts = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
     shader.set_receivers(ReceiverMesh(pts, np.tile([0, 0, 1.0], (2, 1)), np.zeros((0, 3), np.int32)), 2)
     coeffs = np.zeros((4, 3))
@@ -316,7 +316,8 @@ def test_shader_reuses_the_rays_of_a_light_that_moved_less_than_cache_m():
     _, r1 = shader.shade(lights_at([0, 0, 2.0]), coeffs, np.zeros((len(v), 4)), np.full(3, 0.5))
     first = shader.cached_lights
     _, r2 = shader.shade(lights_at([0.005, 0, 2.0]), coeffs, np.zeros((len(v), 4)), np.full(3, 0.5))
-    assert shader.cached_lights == first  # reused
-    np.testing.assert_array_equal(r1, r2)
+    assert shader.cached_lights == first  # 0.14° from the object's centre: its rays reused
+    np.testing.assert_allclose(r1, r2, atol=1e-5)  # the receiver under the object stays in shadow
+    assert r1[0].max() < 0.2 and np.abs(r1[1] - 1).max() < 1e-3  # (the lit object reflects onto both)
     shader.shade(lights_at([0.05, 0, 2.0]), coeffs, np.zeros((len(v), 4)), np.full(3, 0.5))
-    assert shader.cached_lights != first  # 5 cm: cast anew
+    assert shader.cached_lights != first  # 1.4°: cast anew
