@@ -17,7 +17,11 @@ the object changes; "path" path-traces both (see :func:`sim.reference.render_ref
 ``accuracy.json`` gets them pooled over the frames (squared errors and squared references summed
 over all frames' regions), as ``composite_object_rel_rmse``, ``composite_shadow_rel_rmse`` and
 ``composite_rel_rmse`` (null where no frame had such pixels), with ``composite_reference_noise_rel`` (the reference's own relative
-standard error over the same pixels: the floor under which an error cannot be told from noise).
+standard error over the same pixels: the floor under which an error cannot be told from noise; per region
+``composite_object_reference_noise_rel``, ``composite_shadow_reference_noise_rel``). ``*_rel_rmse_noise_corrected`` are the
+same errors with the reference's noise taken out: √(max(Σ (ours − ref)² − Σ σ², 0) / Σ ref²), σ each pixel's standard error
+(the expected squared difference is the squared error against the truth plus σ² when the reference is unbiased and its noise
+independent of ours): an estimate of the error against the noise-free truth.
 
 Written under ``DIR/reference/``: per frame ``<timestamp>.npz`` (``with_object``, ``without_object``
 and ``ours`` as float16 linear radiance, the masks ``object_mask``, ``shadow_mask``, ``valid``,
@@ -137,7 +141,7 @@ class ReferenceRecorder:
         obj = pipeline.virtual_object
         lut = srgb8_to_linear_lut()
         sums = {k: [0.0, 0.0] for k in ("object", "shadow", "all")}
-        noise2 = 0.0
+        noise2 = {k: 0.0 for k in sums}
         rows, seconds = [], []
         for f in self.frames:
             mesh = ExtraMesh(obj.name, np.asarray(obj.vertices, np.float64) + f.object_base, obj.faces, obj.albedo)
@@ -156,7 +160,8 @@ class ReferenceRecorder:
             for k, m in regions.items():
                 sums[k][0] += float(np.sum((ours[m] - pair.with_object[m]) ** 2))
                 sums[k][1] += float(np.sum(pair.with_object[m].astype(np.float64) ** 2))
-            noise2 += float(np.sum(pair.noise_with[regions["all"]].astype(np.float64) ** 2))
+            for k, m in regions.items():
+                noise2[k] += float(np.sum(pair.noise_with[m].astype(np.float64) ** 2))
             rows.append({"timestamp_ns": f.timestamp_ns, "t_s": f.t_s, "object_pixels": e["object_pixels"],
                          "shadow_pixels": e["shadow_pixels"], "object_rel_rmse": e["object_rel_rmse"],
                          "shadow_rel_rmse": e["shadow_rel_rmse"], "rel_rmse": e["rel_rmse"],
@@ -177,11 +182,25 @@ class ReferenceRecorder:
             num, den = sums[k]
             return math.sqrt(num / den) if den > 0 else None
 
+        def noise(k: str) -> float | None:
+            return math.sqrt(noise2[k] / sums[k][1]) if sums[k][1] > 0 else None
+
+        def corrected(k: str) -> float | None:
+            # E[(ours − ref)²] = (ours − truth)² + σ² for a reference unbiased with standard error σ
+            # independent of ours: the error against the truth, the reference's own noise taken out
+            num, den = sums[k]
+            return math.sqrt(max(num - noise2[k], 0.0) / den) if den > 0 else None
+
         metrics = {
             "composite_rel_rmse": pooled("all"),
             "composite_object_rel_rmse": pooled("object"),
             "composite_shadow_rel_rmse": pooled("shadow"),
-            "composite_reference_noise_rel": math.sqrt(noise2 / sums["all"][1]) if sums["all"][1] > 0 else None,
+            "composite_reference_noise_rel": noise("all"),
+            "composite_object_reference_noise_rel": noise("object"),
+            "composite_shadow_reference_noise_rel": noise("shadow"),
+            "composite_rel_rmse_noise_corrected": corrected("all"),
+            "composite_object_rel_rmse_noise_corrected": corrected("object"),
+            "composite_shadow_rel_rmse_noise_corrected": corrected("shadow"),
             "composite_reference_frames": len(rows),
             "composite_object_pixels": int(sum(r["object_pixels"] for r in rows)),
             "composite_shadow_pixels": int(sum(r["shadow_pixels"] for r in rows)),

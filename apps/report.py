@@ -29,7 +29,8 @@ STAGE_ERRORS = {
     "Project sample to EM*": ["em_coverage", "em_ws_psnr_db", "em_sphere_correlation", "em_depth_median_abs_m"],
     "Calculate SH coefficients*": ["sh_coeff_rel_error", "irradiance_rel_error_mean", "irradiance_rel_error_vs_true"],
     "Shade object (PRT)": ["shading_rel_rmse"],
-    "Composite": ["composite_rel_rmse", "composite_object_rel_rmse", "composite_shadow_rel_rmse"],
+    "Composite": ["composite_rel_rmse", "composite_object_rel_rmse", "composite_shadow_rel_rmse",
+                  "composite_rel_rmse_noise_corrected"],
 }
 
 

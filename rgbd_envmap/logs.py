@@ -12,6 +12,8 @@ A session directory holds::
       colour_poses.txt       T_world_from_colour, TUM format
       colour_exposure.txt    optional: "<timestamp_s> <exposure_s> <iso> <bracketed 0|1>" for the colour packets that
                              carry exposure metadata (a log without it, or a packet without a line, reads as unknown)
+      colour_white_balance.txt  optional: "<timestamp_s> <r> <g> <b>", the white-balance gains of the colour packets
+                             that carry them (the same rule)
       groundtruth/           optional: depth_poses.txt, colour_poses.txt (true poses, TUM), depth/<ns>.npz and colour/<ns>.npz (arbitrary named arrays per packet)
 
 Timestamps are integer nanoseconds in memory and ``<seconds>.<9 digits>`` in text, converted by string
@@ -51,7 +53,7 @@ FORMAT, VERSION = "rgbd-envmap-session", 1
 KINDS = ("depth", "colour")
 _EXT = {"depth": "ply", "colour": "png"}
 _SESSION_ENTRIES = ("calibration.json", "groundtruth", *KINDS, *(f"{k}{s}.txt" for k in KINDS for s in ("", "_poses")),
-                    "colour_exposure.txt")
+                    "colour_exposure.txt", "colour_white_balance.txt")
 _PLY_FIELDS = ("x", "y", "z", "confidence")
 _TIMESTAMP_RE = re.compile(r"([0-9]+)(?:\.([0-9]{1,9}))?")
 #: Largest accepted | |q| - 1 | of a quaternion read from a pose file (TUM files print 4 decimals).
@@ -243,7 +245,8 @@ def as_logged(packet: DepthPacket | ColourPacket) -> DepthPacket | ColourPacket:
     these makes a replay of the recorded log reproduce its results bit for bit."""
     if isinstance(packet, DepthPacket):
         return DepthPacket(packet.timestamp_ns, packet.points_m, packet.confidence, _logged_pose(packet.T_world_from_depth))
-    return ColourPacket(packet.timestamp_ns, packet.nv21, _logged_pose(packet.T_world_from_colour), *_logged_exposure(packet))
+    return ColourPacket(packet.timestamp_ns, packet.nv21, _logged_pose(packet.T_world_from_colour), *_logged_exposure(packet),
+                        packet.white_balance)
 
 
 def _logged_exposure(packet: ColourPacket) -> tuple[float | None, float | None, bool]:
@@ -372,6 +375,8 @@ class SessionWriter:
             T = packet.T_world_from_colour
             if packet.exposure_s is not None and packet.iso is not None:
                 self._line("colour_exposure.txt", f"{stamp} {packet.exposure_s:.17g} {packet.iso:.17g} {int(packet.bracketed)}\n")
+            if packet.white_balance is not None:
+                self._line("colour_white_balance.txt", stamp + "".join(f" {w:.17g}" for w in packet.white_balance) + "\n")
         if arrays:  # an .npz by hand: np.savez(**arrays) would take keys "file" / "allow_pickle" as arguments
             (self.root / "groundtruth" / kind).mkdir(parents=True, exist_ok=True)
             with zipfile.ZipFile(self.root / "groundtruth" / kind / f"{ns}.npz", "w") as zf:
@@ -413,6 +418,7 @@ class SessionLog:
         """Use :meth:`open`. ``entries[kind]``: (timestamp_ns, path relative to root, pose) per packet."""
         self.root, self.calibration, self._entries = root, calibration, entries
         self._exposure: dict[int, tuple[float, float, bool]] = {}  # colour_exposure.txt, when the log has it
+        self._white_balance: dict[int, tuple[float, float, float]] = {}  # colour_white_balance.txt, likewise
         self.dropped_points: dict[str, int] = {}
         self.warnings: list[str] = [f"{root / (kind + '.txt')}: empty index (no {kind} packets)"
                                     for kind in KINDS if not entries[kind]]
@@ -444,6 +450,7 @@ class SessionLog:
                 entries[kind].append((ns, rel, poses[ns]))
         log = cls(root, calibration, entries)
         log._exposure = _read_exposure(root / "colour_exposure.txt")
+        log._white_balance = _read_white_balance(root / "colour_white_balance.txt")
         return log
 
     def __len__(self) -> int:
@@ -493,7 +500,8 @@ class SessionLog:
         want = (self.calibration.colour.height * 3 // 2, self.calibration.colour.width)
         if img.dtype != np.uint8 or img.shape != want:
             raise LogFormatError(f"{path}: expected a {want} uint8 NV21 image, got {img.shape} {img.dtype}")
-        return _packet(path, ColourPacket, ns, img, T, *self._exposure.get(ns, (None, None, False)))
+        return _packet(path, ColourPacket, ns, img, T, *self._exposure.get(ns, (None, None, False)),
+                       self._white_balance.get(ns))
 
     def groundtruth(self, kind: str, timestamp_ns: int) -> dict[str, np.ndarray]:
         """Named ground-truth arrays stored with the ``kind`` packet at ``timestamp_ns``; {} if none."""
@@ -523,6 +531,19 @@ def _read_exposure(path: Path) -> dict[int, tuple[float, float, bool]]:
             out[ns] = (float(t), float(iso), {"0": False, "1": True}[br])
         except (ValueError, KeyError):
             raise LogFormatError(f"{path}, line {lineno}: expected <exposure_s> <iso> <0|1>, got {t!r} {iso!r} {br!r}") from None
+    return out
+
+
+def _read_white_balance(path: Path) -> dict[int, tuple[float, float, float]]:
+    """{timestamp_ns: (r, g, b)} of ``colour_white_balance.txt``; {} when the log has none."""
+    if not path.is_file():
+        return {}
+    out = {}
+    for lineno, ns, fields in read_timestamped_table(path, 4):
+        try:
+            out[ns] = tuple(float(f) for f in fields)
+        except ValueError:
+            raise LogFormatError(f"{path}, line {lineno}: expected <r> <g> <b> gains, got {fields!r}") from None
     return out
 
 

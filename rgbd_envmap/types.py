@@ -391,6 +391,10 @@ class ColourPacket(_ArrayEq):
         iso: the frame's sensitivity (ISO), or None.
         bracketed: a frame of an exposure bracket, taken off the auto-exposure for HDR capture: it
             goes into the map but is neither composited nor shown.
+        white_balance: (R, G, B) the per-channel gains the camera's white balance applied to the
+            frame (what Android reports as its colour-correction gains), or None where the camera does
+            not say. With the exposure, the frame's gains relative to another frame's are known
+            (``capture.known_white_balance``, docs/design/colour_correction.md).
     """
 
     timestamp_ns: int
@@ -399,6 +403,7 @@ class ColourPacket(_ArrayEq):
     exposure_s: float | None = None
     iso: float | None = None
     bracketed: bool = False
+    white_balance: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "timestamp_ns", _timestamp(self.timestamp_ns, "timestamp_ns"))
@@ -414,6 +419,11 @@ class ColourPacket(_ArrayEq):
             value = check_number(getattr(self, name), name, low=0.0, low_open=True, optional=True)
             object.__setattr__(self, name, None if value is None else float(value))
         object.__setattr__(self, "bracketed", check_flag(self.bracketed, "bracketed"))
+        if self.white_balance is not None:
+            wb = check_array(self.white_balance, "white_balance", shape=(3,), dtype=("float", "int"), finite=True)
+            if not (wb > 0).all():
+                raise RangeError(f"white_balance: expected three gains > 0, got {wb.tolist()}")
+            object.__setattr__(self, "white_balance", tuple(float(w) for w in wb))
 
     @property
     def exposure(self) -> float | None:

@@ -197,6 +197,8 @@ class ColourCapture:
     iso: float = 100.0
     #: a bracket frame (exposed off the auto-exposure; ``ev`` of :func:`capture_colour`).
     bracketed: bool = False
+    #: the per-channel white-balance gains the frame was taken with (as a phone reports them).
+    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
 
 def capture_colour(
@@ -233,4 +235,5 @@ def capture_colour(
     else:
         next_state = state
     exposure_s, iso = config.exposure_time_iso(state.exposure * scale)
-    return ColourCapture(encode_nv21(srgb8), gains, radiance, next_state, exposure_s, iso, ev is not None)
+    return ColourCapture(encode_nv21(srgb8), gains, radiance, next_state, exposure_s, iso, ev is not None,
+                         tuple(float(w) for w in state.white_balance))

@@ -153,7 +153,8 @@ class Simulator:
                                      self.device.colour.bracket_at(index))
                 state = cap.next_state
                 reported = self.device.reported(T_true, self._rng(_TRACKING, 2 * index + 1))
-                packet = ColourPacket(timestamp_ns, cap.nv21, reported, cap.exposure_s, cap.iso, cap.bracketed)
+                packet = ColourPacket(timestamp_ns, cap.nv21, reported, cap.exposure_s, cap.iso, cap.bracketed,
+                                      cap.white_balance)
                 yield SimPacket(packet, T_true, {"gains": cap.gains}, t_s)
             return
         yield from self._reordered(self._faulty(duration_s))
@@ -190,7 +191,7 @@ class Simulator:
                 cap = capture_colour(self.raycaster, T_true, t_s, self.device.colour, state, self._rng(_COLOUR, index),
                                      self.device.colour.bracket_at(index))
                 state = cap.next_state
-                nv21, gains, meta = cap.nv21, cap.gains, (cap.exposure_s, cap.iso, cap.bracketed)
+                nv21, gains, meta = cap.nv21, cap.gains, (cap.exposure_s, cap.iso, cap.bracketed, cap.white_balance)
             if loss is not None and loss.mode == "none":
                 self._report(kind, index, stamp_ns, t_s, faults + ["no_pose"])
                 continue

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -91,6 +91,12 @@ class CaptureConfig:
     #: green gain at 1), "luminance" (:data:`rgbd_envmap.colour.ccm.GAIN_CHANNELS`), or None (the gain
     #: is fitted too, the paper; as when an exposure is unknown).
     fixed_gain: str | None = "green"
+    #: with the white-balance gains known too (the reference frame's and the frame's, as phones report
+    #: them: :attr:`rgbd_envmap.types.ColourPacket.white_balance`), the matrix is known, not fitted:
+    #: diag(reference gains / frame gains), gains = exposure × white balance. The fit above still gates
+    #: the frame (``min_pairs``, ``max_mse``: a wrong pose fails it; a room whose light changed does
+    #: not). False: the fitted matrix is used (docs/design/colour_correction.md).
+    known_white_balance: bool = True
     update: UpdateConfig = field(default_factory=UpdateConfig)
     #: which hole-filled pixels go into the map: "all" (paper), "plane_consistent", "none". With the
     #: edge margin on, "plane_consistent" measures no better than "all".
@@ -114,6 +120,7 @@ class CaptureConfig:
                              f"{MAX_MAP_PIXELS:,} pixels (e.g. 8192×4096)")
         check_number(self.pair_max_depth_diff_m, "CaptureConfig.pair_max_depth_diff_m", low=0.0)
         check_flag(self.colour_correction, "CaptureConfig.colour_correction")
+        check_flag(self.known_white_balance, "CaptureConfig.known_white_balance")
         if not isinstance(self.update, UpdateConfig):
             raise DTypeError(f"CaptureConfig.update: expected an UpdateConfig, got {type(self.update).__name__}")
         check_number(self.edge_margin_px, "CaptureConfig.edge_margin_px", low=0, high=64, integer=True, optional=True)
@@ -164,9 +171,11 @@ class EnvironmentCapture:
         self.has_reference = False
         #: exposure time × ISO of the reference frame, None where unknown.
         self.reference_exposure: float | None = None
+        self.reference_white_balance: np.ndarray | None = None
 
     def process(self, raw: RGBDFrame, reliable: np.ndarray, filled: RGBDFrame, *, across_edges: np.ndarray | None = None,
-                timer: StageTimer | None = None, exposure: float | None = None) -> CaptureStep:
+                timer: StageTimer | None = None, exposure: float | None = None,
+                white_balance: object = None) -> CaptureStep:
         """Process one ingested frame: ``raw`` (before hole filling) with its ``reliable`` mask, and
         ``filled`` (after hole filling), both in the current camera's colour space. ``timer`` records
         the stages "Collect paired samples", "Compute colour correction matrix" (the fit and its MSE)
@@ -182,9 +191,16 @@ class EnvironmentCapture:
 
         ``exposure``: the frame's exposure time × ISO (:attr:`rgbd_envmap.types.ColourPacket.exposure`),
         None where unknown. With it and the reference frame's known, the matrix's gain is their ratio
-        (``config.fixed_gain``)."""
+        (``config.fixed_gain``). ``white_balance``: (3,) the frame's white-balance gains, None where
+        unknown; with both known for the frame and the reference frame the matrix is known
+        (``config.known_white_balance``)."""
         cfg = self.config
         exposure = check_number(exposure, "exposure", low=0.0, low_open=True, optional=True)
+        if white_balance is not None:
+            white_balance = check_array(white_balance, "white_balance", shape=(3,), dtype=("float", "int"),
+                                        finite=True).astype(np.float64)
+            if not (white_balance > 0).all():
+                raise RangeError(f"white_balance: expected three gains > 0, got {white_balance.tolist()}")
         t = timer or _NO_TIMER
         ts = raw.timestamp_ns
         if not self.has_reference:
@@ -192,6 +208,7 @@ class EnvironmentCapture:
                 return CaptureStep(ts, False, None, False, "no known pixels for a reference frame", 0, self.matrix.copy(), None)
             self.has_reference = True
             self.reference_exposure = exposure
+            self.reference_white_balance = white_balance
             stats = None if cfg.freeze else self._timed_project(raw, filled, np.eye(3), t, across_edges)
             return CaptureStep(ts, True, None, not cfg.freeze, "" if not cfg.freeze else "frozen", 0, self.matrix.copy(), stats)
         if not cfg.colour_correction:
@@ -217,6 +234,13 @@ class EnvironmentCapture:
                 n_found = len(src)
             with t.stage("Compute colour correction matrix"):
                 ccm = estimate_ccm(src, dst, method=cfg.ccm_method, max_mse=cfg.max_mse, min_pairs=cfg.min_pairs, **gain)
+        if ccm.accepted and cfg.known_white_balance and exposure is not None and self.reference_exposure is not None \
+                and white_balance is not None and self.reference_white_balance is not None:
+            # The frame's gains against the reference frame's are known: that is the matrix. The fit
+            # still gates the frame (its residual tells a wrong pose or a blurred frame; a room whose
+            # light changed is still one linear map away, so it passes, and the change reaches the map).
+            gains = (self.reference_exposure / exposure) * self.reference_white_balance / white_balance
+            ccm = replace(ccm, matrix=np.diag(gains), method="known")
         if not ccm.accepted:
             return CaptureStep(ts, False, ccm, False, ccm.reason, n_found, self.matrix.copy(), None)
         self.matrix = np.array(ccm.matrix, dtype=np.float64)

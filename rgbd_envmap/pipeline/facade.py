@@ -598,7 +598,8 @@ class Pipeline:
         exposure = self._matrix_exposure if bracket else colour.exposure
         # A bracket frame is fitted and gated like a live one (projecting it with the matrix in force,
         # ungated, broke the matrix's chain after a dropout burst: docs/design/hdr.md).
-        out = self._capture_and_relight(frame, filled, reliable=reliable, across_edges=across, exposure=exposure)
+        out = self._capture_and_relight(frame, filled, reliable=reliable, across_edges=across, exposure=exposure,
+                                        white_balance=colour.white_balance)
         if bracket:  # a bracket frame's fit does not steer the live frames' correction (nor their composites)
             self.capture.matrix = live_matrix
         elif out.capture.reference or (out.capture.ccm is not None and out.capture.ccm.accepted):
@@ -616,18 +617,21 @@ class Pipeline:
 
     def _capture_and_relight(self, frame: RGBDFrame, filled: RGBDFrame, *, reliable: np.ndarray | None = None,
                              depth_m: np.ndarray | None = None, known: np.ndarray | None = None,
-                             across_edges: np.ndarray | None = None, exposure: float | None = None) -> DepthStep:
+                             across_edges: np.ndarray | None = None, exposure: float | None = None,
+                             white_balance: tuple[float, float, float] | None = None) -> DepthStep:
         """Reliability (unless given), correction + EM update, SH and shading of one ingested frame.
         ``depth_m`` / ``known``: the sensor's own measurement when ``frame`` is already a merge of it;
         ``across_edges``: the hole filling's flags (:class:`rgbd_envmap.ingest.tango.TangoIngestResult`);
-        ``exposure``: the colour frame's exposure time × ISO, None where unknown."""
+        ``exposure``: the colour frame's exposure time × ISO, None where unknown; ``white_balance``: its
+        white-balance gains, None where unknown."""
         from rgbd_envmap.depth import mark_reliable
 
         t = self.timer
         if reliable is None:
             with t.stage("Mark reliable RGB-D"):
                 reliable = mark_reliable(frame.rgb, frame.depth_m, frame.known, method=self.config.ingest.reliability_method)
-        step = self.capture.process(frame, reliable, filled, across_edges=across_edges, timer=t, exposure=exposure)
+        step = self.capture.process(frame, reliable, filled, across_edges=across_edges, timer=t, exposure=exposure,
+                                    white_balance=white_balance)
         sh_updated = False
         if not self.fixed_lighting and (step.projected or not self.has_lighting):
             if self.capture.em.valid.any():

@@ -110,6 +110,12 @@ def test_simulate_writes_reference_frames_and_composite_metrics(tmp_path):
     assert accuracy["composite_reference_frames"] == 2
     for key in ("composite_rel_rmse", "composite_object_rel_rmse", "composite_shadow_rel_rmse"):
         assert accuracy[key] is not None and 0 <= accuracy[key] < 1.5, (key, accuracy[key])
+    # the noise-corrected errors: the raw ones with the reference's own noise taken out, region by region
+    for region in ("", "object_", "shadow_"):
+        raw, noise = accuracy[f"composite_{region}rel_rmse"], accuracy[f"composite_{region}reference_noise_rel"]
+        corrected = accuracy[f"composite_{region}rel_rmse_noise_corrected"]
+        assert noise > 0 and 0 <= corrected <= raw
+        assert corrected ** 2 == pytest.approx(max(raw ** 2 - noise ** 2, 0.0), rel=1e-9, abs=1e-12)
     frames = sorted((out / "reference").glob("*.npz"))
     assert len(frames) == 2 and len(list((out / "reference").glob("*.png"))) == 2
     times = []
