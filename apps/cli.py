@@ -216,7 +216,8 @@ def build_parser() -> argparse.ArgumentParser:
     sw = sub.add_parser(
         "sweep", formatter_class=fmt, help="speed-vs-error grid over pipeline settings",
         description="Replay one recorded log under a grid of settings (EM size, SH bands, hole filling, "
-        "correction method, translation method), in parallel over the cores, and write sweep.csv, "
+        "correction method, translation method; with rendering on: light sampler and count, composite mode; "
+        "composites scored against the run's reference frames), in parallel over the cores, and write sweep.csv, "
         "sweep.md (time and error side by side) and pareto.png. LOG: a session log written by simulate (the "
         "session/ folder of a run, with its groundtruth/: the errors are measured against it); other layouts "
         "are not swept.",
@@ -225,7 +226,15 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     sw.add_argument("--jobs", type=int, default=None, metavar="N", help="parallel processes (default: the number of cores)")
     sw.add_argument("--axes", nargs="+", default=None, metavar="AXIS",
-                    help="which axes to sweep (default all): em_size bands hole_filling ccm translation")
+                    help="which axes to sweep (default all): em_size bands hole_filling ccm translation (rendering off); "
+                    "lights composite (rendering on: light sampler × count; composite mode, object shading, tau)")
+    sw.add_argument("--reference", type=Path, default=None, metavar="DIR",
+                    help="reference frames (<timestamp>.npz of a simulated run) to score the rendering points' composites "
+                    "against (default: LOG/../reference if it has any)")
+    sw.add_argument("--no-reference", action="store_true", help="do not score composites against reference frames")
+    sw.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                    help="a setting for every point, before the point's own (repeatable), e.g. the --set of the run that "
+                    "recorded LOG")
     sw.add_argument("--quiet", action="store_true", help="no progress bar")
     from apps.export import add_export_parser
 
@@ -308,7 +317,9 @@ def main(argv: list[str] | None = None) -> int:
         elif args.command == "sweep":
             from apps.sweep import run_sweep
 
-            path = run_sweep(args.log, args.out, jobs=args.jobs, axes=args.axes, progress=not args.quiet)
+            reference = None if args.no_reference else (args.reference if args.reference is not None else "auto")
+            path = run_sweep(args.log, args.out, jobs=args.jobs, axes=args.axes, progress=not args.quiet,
+                             reference=reference, base_overrides=args.overrides)
             print(f"wrote {path}")
     except KeyboardInterrupt as exc:
         if args.debug:
