@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import tempfile
 from collections.abc import Iterator
 
@@ -212,6 +213,8 @@ class AccuracyTracker:
         self._ccm = StreamQuantiles(exact_values)
         self._n_depth_truth = 0
         self._n_frames = self._n_projected = self._n_rejected = 0
+        #: depth frames the capture did not project, by reason ("too few pairs", "mse", ...)
+        self.rejected_by_reason: dict[str, int] = {}
 
     @property
     def rows(self) -> _RowSpool:
@@ -279,7 +282,11 @@ class AccuracyTracker:
             row["filled_pixels"] = int(filled.sum())
         self._n_frames += 1
         self._n_projected += bool(row["projected"])
-        self._n_rejected += (not row["projected"]) and row["reason"] not in ("frozen",)
+        rejected = (not row["projected"]) and row["reason"] not in ("frozen",)
+        self._n_rejected += rejected
+        if rejected:  # by the reason's words: "mse 0.08 > 0.05" counts as "mse"
+            why = re.split(r"[0-9(]", row["reason"], maxsplit=1)[0].strip() or "unknown"
+            self.rejected_by_reason[why] = self.rejected_by_reason.get(why, 0) + 1
         self._rows.append(row)
         return row
 

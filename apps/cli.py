@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -242,6 +243,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _print_rejected(run: Path) -> None:
+    """One line for the depth frames the capture did not project (``run.json``'s depth_frames_rejected)."""
+    try:
+        rejected = json.loads((run / "run.json").read_text()).get("depth_frames_rejected") or {}
+    except (OSError, ValueError):
+        return
+    if rejected:
+        reasons = ", ".join(f"{why} {n}" for why, n in rejected.items())
+        print(f"depth frames not projected into the map: {sum(rejected.values())} ({reasons}; depth_frames.csv)")
+
+
 def main(argv: list[str] | None = None) -> int:
     from apps.process import configure_process
 
@@ -288,6 +300,7 @@ def main(argv: list[str] | None = None) -> int:
             if summary["pipeline"]:
                 print(f"report: {args.out / 'timing.md'}\ncomposites: {args.out / 'composites'}/"
                       + ("" if args.no_video else f" and {args.out / 'composites.mp4'}"))
+                _print_rejected(args.out)
         elif args.command == "replay":
             from apps.replay import ReplayOptions, run_replay
 
@@ -305,6 +318,7 @@ def main(argv: list[str] | None = None) -> int:
             skipped = summary.get("skipped") or {}
             print(f"replayed {summary['depth_packets']} depth and {summary['colour_packets']} colour packets"
                   + (f" (skipped unreadable: {skipped})" if skipped else "") + f" → {args.out / 'timing.md'}")
+            _print_rejected(args.out)
         elif args.command == "report":
             from apps.report import write_reports
 

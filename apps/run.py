@@ -248,6 +248,7 @@ def run_pipeline(
     summary = {
         "depth_packets": n_depth, "colour_packets": n_colour, "depth_frames_processed": pipeline.depth_steps,
         "depth_packets_dropped": pipeline.dropped_depth, "packets_skipped": dict(sorted(pipeline.skipped.items())),
+        "depth_frames_rejected": dict(sorted(tracker.rejected_by_reason.items())),
         "depth_late_pairs": pipeline.late_pairs, "map_check_accepted": pipeline.map_check_accepted,
         "bracketed_colour_frames": pipeline.bracketed_frames,
         "pipeline_wall_s": wall,

@@ -61,6 +61,17 @@ def test_replay_of_the_recorded_session_reproduces_the_map_bit_for_bit(run, tmp_
     assert json.loads((out / "accuracy.json").read_text()) == json.loads((run / "accuracy.json").read_text())
 
 
+def test_depth_frames_the_capture_rejects_are_counted_by_reason_and_printed(run, tmp_path, capsys):
+    assert json.loads((run / "run.json").read_text())["depth_frames_rejected"] == {}
+    out = tmp_path / "rejecting"
+    # no frame after the reference can have a million pairs: every one is "too few pairs"
+    assert main(["replay", str(run / "session"), "--out", str(out), "--set", "capture.min_pairs=1000000", *SMALL[2:6]]) == 0
+    rejected = json.loads((out / "run.json").read_text())["depth_frames_rejected"]
+    rows = list(csv.DictReader(open(out / "depth_frames.csv")))
+    assert rejected == {"too few pairs": 4} and sum(r["reason"].startswith("too few pairs") for r in rows) == 4
+    assert "depth frames not projected into the map: 4 (too few pairs 4;" in capsys.readouterr().out
+
+
 def test_replay_with_other_settings_and_origin(run, tmp_path):
     out = tmp_path / "other"
     assert main(["replay", str(run / "session"), "--out", str(out), "--origin", "0.1", "0", "0.8", "--set", "capture.colour_correction=false",
