@@ -19,6 +19,7 @@ from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.geometry import equirect_directions, equirect_solid_angles
 from rgbd_envmap.lights import LightSet
 from rgbd_envmap.pipeline import PipelineConfig
+from tests.sim.test_reference_frames import _ROOM as _REFERENCE_ROOM
 
 
 # --- the grid ------------------------------------------------------------------------------------------
@@ -186,22 +187,8 @@ def test_sweep_csv_round_trips_and_the_plot_covers_the_rendering_axes(tmp_path):
 
 # --- the scoring identity on a tiny simulated run ------------------------------------------------------
 
-_ROOM = {
-    "name": "sweep_room",
-    "virtual_object_position": [0.0, 0.0, 0.80],
-    "default_trajectory": "orbit_inward",
-    "objects": [
-        {"name": "floor", "shape": "quad", "corner": [-1.6, -1.6, 0.0], "u": [3.2, 0, 0], "v": [0, 3.2, 0], "albedo": [0.5, 0.5, 0.5]},
-        {"name": "ceiling", "shape": "quad", "corner": [-1.6, -1.6, 2.4], "u": [3.2, 0, 0], "v": [0, 3.2, 0], "albedo": [0.7, 0.7, 0.7]},
-        {"name": "south", "shape": "quad", "corner": [-1.6, -1.6, 0.0], "u": [3.2, 0, 0], "v": [0, 0, 2.4], "albedo": [0.6, 0.5, 0.4]},
-        {"name": "north", "shape": "quad", "corner": [-1.6, 1.6, 0.0], "u": [3.2, 0, 0], "v": [0, 0, 2.4], "albedo": [0.4, 0.5, 0.6]},
-        {"name": "west", "shape": "quad", "corner": [-1.6, -1.6, 0.0], "u": [0, 3.2, 0], "v": [0, 0, 2.4], "albedo": [0.5, 0.6, 0.5]},
-        {"name": "east", "shape": "quad", "corner": [1.6, -1.6, 0.0], "u": [0, 3.2, 0], "v": [0, 0, 2.4], "albedo": [0.6, 0.6, 0.6]},
-        {"name": "table", "shape": "box", "centre": [0.0, 0.0, 0.375], "size": [1.0, 1.0, 0.75], "albedo": [0.7, 0.65, 0.6]},
-        {"name": "lamp", "shape": "quad", "corner": [-0.3, -0.3, 2.39], "u": [0.6, 0, 0], "v": [0, 0.6, 0],
-         "albedo": [0.5, 0.5, 0.5], "emission": [6.0, 6.0, 6.0]},
-    ],
-}
+# the small lit room of the reference-frame tests (walls, table, a ceiling lamp), under its own name
+_ROOM = {**_REFERENCE_ROOM, "name": "sweep_room"}
 _SETTINGS = ["capture.width=400", "capture.height=200"]
 
 
