@@ -250,6 +250,7 @@ def run_pipeline(
         "depth_packets_dropped": pipeline.dropped_depth, "packets_skipped": dict(sorted(pipeline.skipped.items())),
         "depth_frames_rejected": dict(sorted(tracker.rejected_by_reason.items())),
         "depth_late_pairs": pipeline.late_pairs, "map_check_accepted": pipeline.map_check_accepted,
+        "frozen_pose_resumes": pipeline.frozen_resumes,
         "bracketed_colour_frames": pipeline.bracketed_frames,
         "pipeline_wall_s": wall,
         "em_origin": pipeline.capture.em.origin.tolist(), **reference_facts,

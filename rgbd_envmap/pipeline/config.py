@@ -146,7 +146,9 @@ class PoseCheckConfig:
     jump until ``jump_hold_s`` after it: which side of a jump is right is unknown, and a wrong pose
     that snaps back within the hold never reaches the map (a jump that stays is accepted after it).
     A depth pose bit for bit equal to the previous depth packet's is a frozen tracker
-    (``skip_frozen``). The slacks cover tracking noise of about a centimetre and a degree.
+    (``skip_frozen``); with it, a jump straight after a frozen pose is the tracker catching up
+    and is taken without a hold or map check (the frozen side is known to be wrong). The slacks
+    cover tracking noise of about a centimetre and a degree.
 
     **The map check** (``map_check``) catches an offset that outlasts the hold. After a jump, each
     depth packet's points (``map_check_points`` of them) are placed twice, by the reported pose and

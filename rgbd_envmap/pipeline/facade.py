@@ -92,6 +92,10 @@ STAGES = (
 )
 DEPTH_TOTAL = "depth_frame_total"
 COLOUR_TOTAL = "colour_frame_total"
+#: two packets' poses (in the colour camera's frame) closer than this (metres, and rotation entries) are
+#: the same frozen pose: a tracker that stopped reports one pose for both streams, a moving device's
+#: tracking noise is millimetres.
+FROZEN_POSE_TOL = 1e-7
 #: the differential composite's lights and direct / indirect split work on every LIGHT_MAP_STRIDE-th map
 #: row and column.
 LIGHT_MAP_STRIDE = 4
@@ -227,6 +231,8 @@ class Pipeline:
         self.map_consistency: tuple[MapConsistency, MapConsistency] | None = None
         #: depth packets the map check found inconsistent but let in (``pose_check.map_accept_after_s``).
         self.map_check_accepted = 0
+        #: pose jumps that ended a frozen pose (a tracker catching up), taken without a hold
+        self.frozen_resumes = 0
         self._prev_nv21: np.ndarray | None = None
         self._colour_from_depth = calibration.T_colour_from_depth.inverse().matrix
         self._renderer = None
@@ -344,6 +350,12 @@ class Pipeline:
         cos = (np.trace(a[:3, :3].T @ b[:3, :3]) - 1.0) * 0.5
         turn = math.degrees(math.acos(min(1.0, max(-1.0, cos))))
         if math.sqrt(step @ step) > pc.max_speed_m_s * dt + pc.slack_m or turn > pc.max_turn_deg_s * dt + pc.slack_deg:
+            if pc.skip_frozen and before is not None and before[0] != last[0] \
+                    and np.allclose(before[1], last[1], rtol=0.0, atol=FROZEN_POSE_TOL):
+                # A frozen tracker catching up: the frozen side is the wrong one, so the new pose is
+                # taken as it is (no hold, no map check; the frozen packets were skipped).
+                self.frozen_resumes += 1
+                return
             self._jumped = True
             self._jump_ns = timestamp_ns
             if pc.map_check:  # where the device would be without the jump: the motion before it, continued
