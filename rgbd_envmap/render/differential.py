@@ -168,23 +168,16 @@ def receiver_occlusion(receivers: ReceiverMesh, occluder: ObjectOccluder, bands:
     return ReceiverOcclusion(out_sh, out_cos)
 
 
-def _light_geometry(lights: LightSet, points: np.ndarray):
-    """Per (point, light): the vector to the light (a long one for a distant light), the factor that
-    turns power into irradiance on a surface facing it, and which lights count."""
+def _light_rays(lights: LightSet, points: np.ndarray) -> np.ndarray:
+    """(N, n, 3) per (point, light): the vector from the point to the light (1 km along a distant
+    light's direction), the shadow ray's segment."""
     has_pos = np.zeros(len(lights), bool) if lights.positions is None else np.isfinite(lights.positions).all(axis=1)
     vec = np.empty((len(points), len(lights), 3))
-    fac = np.empty((len(points), len(lights)))
     if has_pos.any():
-        pos = lights.positions[has_pos]
-        r2o = np.sum((pos - lights.origin) ** 2, axis=1)
-        delta = pos[None] - points[:, None]
-        r2 = np.maximum(np.sum(delta ** 2, axis=2), 1e-12)
-        vec[:, has_pos] = delta
-        fac[:, has_pos] = r2o[None] / r2 / np.sqrt(r2)  # I / r² / |delta| (cos from the unnormalised delta)
+        vec[:, has_pos] = lights.positions[has_pos][None] - points[:, None]
     if (~has_pos).any():
         vec[:, ~has_pos] = lights.directions[~has_pos][None] * 1e3  # "at infinity": 1 km away
-        fac[:, ~has_pos] = 1e-3
-    return vec, fac, has_pos
+    return vec
 
 
 def direct_irradiance(lights: LightSet, points: object, normals: object, visible: np.ndarray | None = None) -> np.ndarray:
@@ -243,7 +236,7 @@ def light_visibility(lights: LightSet, points: np.ndarray, normals: np.ndarray, 
     vis = np.ones((len(pts), len(lights)), bool)
     if len(pts) == 0 or len(lights) == 0 or occluder.radius <= 0:
         return vis
-    vec, _, _ = _light_geometry(lights, pts)
+    vec = _light_rays(lights, pts)
     org = pts + offset_m * nrm
     for i in range(len(lights)):
         v = vec[:, i]
