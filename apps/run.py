@@ -251,6 +251,7 @@ def run_pipeline(
         "depth_frames_rejected": dict(sorted(tracker.rejected_by_reason.items())),
         "depth_late_pairs": pipeline.late_pairs, "map_check_accepted": pipeline.map_check_accepted,
         "frozen_pose_resumes": pipeline.frozen_resumes,
+        "relights_lights_kept": pipeline.lights_kept,
         "bracketed_colour_frames": pipeline.bracketed_frames,
         "pipeline_wall_s": wall,
         "em_origin": pipeline.capture.em.origin.tolist(), **reference_facts,

@@ -6,7 +6,7 @@ with its depth, point) lights; merging lights of several cameras; the direct / i
   from frame to frame.
 - :func:`merge_lights`: lights of several cameras into one set (paper 002 §4).
 - :func:`split_direct_indirect`: the brightest part of a map for lights, the rest for SH (paper 000
-  §4.2); :func:`direct_mask` the direct pixels alone.
+  §4.2); :func:`direct_mask` the direct pixels alone, :func:`direct_part` with their SH coefficients.
 - :func:`irradiance`: what a light set gives on a surface; :func:`map_integral`: ∫ L dω of a map.
 
 Design, speed and accuracy: docs/design/lights.md. Readable references of each method's core:
@@ -23,7 +23,7 @@ from rgbd_envmap.lights.merge import merge_lights
 from rgbd_envmap.lights.q2tree import Q2TreeState
 from rgbd_envmap.lights.result import LightSet, irradiance
 from rgbd_envmap.lights.sample import MAX_LIGHTS, METHODS, sample_lights
-from rgbd_envmap.lights.split import DirectIndirect, direct_mask, split_direct_indirect
+from rgbd_envmap.lights.split import DirectIndirect, direct_mask, direct_part, split_direct_indirect
 
-__all__ = ["DirectIndirect", "HemigonState", "LightSet", "MAX_LIGHTS", "METHODS", "Q2TreeState", "direct_mask",
+__all__ = ["DirectIndirect", "HemigonState", "LightSet", "MAX_LIGHTS", "METHODS", "Q2TreeState", "direct_mask", "direct_part",
            "irradiance", "map_integral", "merge_lights", "sample_lights", "split_direct_indirect"]

@@ -2,8 +2,10 @@
 
 The brightest pixels that together hold a fraction τ of the map's energy are the *direct* part: a
 luminance threshold is found by accumulating the valid pixels' energy Y · Ω from the brightest pixel
-down until τ of the total is reached (a log-luminance histogram narrows the search to one bin, which
-alone is sorted), and every valid pixel at or above it is direct. The direct
+down until τ of the total is reached (a histogram of energy over luminance narrows the search to one
+bin, which alone is sorted: one compiled pass, :mod:`rgbd_envmap._kernels.lights_split`), and every
+valid pixel at or above it is direct. :func:`direct_part` also sums the direct pixels' own SH
+coefficients in that pass. The direct
 pixels are handed to a light sampler (``sample_lights(radiance, n, valid=split.direct)``); the
 *indirect* rest is the map with those pixels set to zero (and still valid, so that SH projection
 does not fill them from their neighbours), to be projected to SH. Every valid pixel is in exactly
@@ -23,11 +25,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgbd_envmap.checks import check_finite, check_number
+from rgbd_envmap._kernels import lights_split
+from rgbd_envmap.checks import check_array, check_number
 from rgbd_envmap.errors import RangeError
-from rgbd_envmap.lights.maps import check_inputs, luminance
+from rgbd_envmap.lights.maps import LUMINANCE_WEIGHTS, check_inputs, luminance, raise_bad_values
 
-__all__ = ["DirectIndirect", "direct_mask", "split_direct_indirect"]
+__all__ = ["DirectIndirect", "direct_mask", "direct_part", "split_direct_indirect"]
 
 
 @dataclass(frozen=True)
@@ -60,62 +63,45 @@ class DirectIndirect:
             raise RangeError(f"direct: expected an (H, W) bool mask matching indirect {self.indirect.shape}")
 
 
-def _threshold(y: np.ndarray, e: np.ndarray, target: float) -> float:
-    """The largest luminance t such that the pixels with y ≥ t hold ≥ ``target`` energy (y, e: the
-    valid pixels' luminance and energy; Σ e ≥ target > 0). A log-luminance histogram of energy finds
-    the bin where the sum from the top crosses the target; only that bin's pixels are sorted, so the
-    answer is that of a full sort at the cost of one pass."""
-    pos = y > 0
-    y, e = y[pos], e[pos]
-    ly = np.log2(y)
-    lo, hi = float(ly.min()), float(ly.max())
-    nb = 4096
-    idx = np.zeros(y.size, np.int64) if hi == lo else np.clip(((ly - lo) * (nb / (hi - lo))).astype(np.int64), 0, nb - 1)
-    e_bin = np.bincount(idx, e, nb)
-    above = np.concatenate([np.cumsum(e_bin[::-1])[::-1], [0.0]])  # above[b]: energy of bins ≥ b
-    b = int(np.flatnonzero(above[:nb] >= target)[-1]) if (above[:nb] >= target).any() else 0
-    inside = idx == b
-    yb, eb = y[inside], e[inside]
-    order = np.argsort(-yb, kind="stable")
-    cum = above[b + 1] + np.cumsum(eb[order])
-    m = min(int(np.searchsorted(cum, target, side="left")), yb.size - 1)
-    return float(yb[order[m]])
-
-
 def direct_mask(radiance: object, tau: float, valid: object = None) -> tuple[np.ndarray, float]:
     """The direct part of a split alone: ((H, W) bool, the threshold) for an equirect map (H, W, 3),
     a fraction ``tau`` ∈ [0, 1] and ``valid`` (H, W) bool or None, with the checks of
     :func:`split_direct_indirect` (which builds on it) and none of its copies: what a caller that keeps
     its own map needs per frame."""
-    tau = check_number(tau, "tau", low=0.0, high=1.0)
-    m = check_inputs(radiance, valid)
-    direct, threshold, _, _ = _direct(m, tau)
+    direct, threshold, _ = _direct(radiance, tau, valid, None)
     return direct, threshold
 
 
-def _direct(m, tau: float) -> tuple[np.ndarray, float, np.ndarray, float]:
-    """(direct mask, threshold, per-pixel energy Y · Ω (H, W), total energy) of checked inputs."""
-    rad = m.radiance
-    H, W = rad.shape[:2]
-    y = luminance(rad)
-    ok = m.valid
-    where = "" if ok is None else " (at valid pixels)"
-    # a NaN or infinite channel makes the (positive-weighted) luminance non-finite
-    if not np.isfinite(y if ok is None else y[ok]).all():
-        check_finite(rad if ok is None else rad[ok], "radiance" + where)
-    low = float(rad.min()) if ok is None else float(np.min(np.where(ok[..., None], rad, 0), initial=0.0))
-    if low < 0:
-        raise RangeError(f"radiance: expected values ≥ 0{where}, got a smallest value of {low}")
-    e = y * m.row_omega[:, None]
-    yv, ev = (y.ravel(), e.ravel()) if ok is None else (y[ok], e[ok])
-    total = float(ev.sum())
-    if tau > 0 and total > 0:
-        threshold = _threshold(yv, ev, tau * total * (1 - 1e-12))
-        direct = y >= threshold
-        if ok is not None:
-            direct &= ok
-        return direct, threshold, e, total
-    return np.zeros((H, W), bool), np.inf, e, total
+def direct_part(radiance: object, tau: float, basis: object, valid: object = None
+                ) -> tuple[np.ndarray, float, np.ndarray]:
+    """:func:`direct_mask` and the direct pixels' own SH coefficients in the same pass: (mask,
+    threshold, (K, 3) float64 Σ over direct pixels of radiance × ``basis`` row), ``basis`` (H·W, K)
+    float64 each pixel's SH basis times its solid angle (row-major pixels). The indirect part's
+    coefficients are then the whole map's minus these, without projecting a second map."""
+    direct, threshold, sh = _direct(radiance, tau, valid, basis)
+    return direct, threshold, sh
+
+
+def _direct(radiance: object, tau: float, valid: object, basis: object) -> tuple[np.ndarray, float, np.ndarray]:
+    """The checked inputs through the kernel: (mask, threshold, SH sums (K, 3), (0, 3) without
+    ``basis``); bad values at valid pixels raise the typed errors."""
+    tau = check_number(tau, "tau", low=0.0, high=1.0)
+    m = check_inputs(radiance, valid)
+    H, W = m.radiance.shape[:2]
+    if basis is None:
+        table, use_basis = np.zeros((1, 0)), False
+    else:
+        table = check_array(basis, "basis", shape=(H * W, "K"), dtype="float")
+        table, use_basis = np.ascontiguousarray(table, np.float64), True
+    y = np.empty((H, W))
+    mask = np.empty((H, W), bool)
+    sh = np.zeros((table.shape[1] if use_basis else 0, 3))
+    valid_arr = m.valid if m.valid is not None else np.ones((1, 1), bool)
+    w = LUMINANCE_WEIGHTS
+    threshold, _, lowest, finite = lights_split.direct_split(
+        m.radiance, valid_arr, m.valid is not None, m.row_omega, w[0], w[1], w[2], tau, table, use_basis, y, mask, sh)
+    raise_bad_values(m, lowest, finite)
+    return mask, float(threshold), sh
 
 
 def split_direct_indirect(radiance: object, tau: float, valid: object = None) -> DirectIndirect:
@@ -126,8 +112,10 @@ def split_direct_indirect(radiance: object, tau: float, valid: object = None) ->
     tau = check_number(tau, "tau", low=0.0, high=1.0)
     m = check_inputs(radiance, valid)
     rad = m.radiance
-    direct, threshold, e, total = _direct(m, tau)
+    direct, threshold, _ = _direct(rad, tau, m.valid, None)
+    e = luminance(rad) * m.row_omega[:, None]
     ok = m.valid
+    total = float(e.sum() if ok is None else e[ok].sum())
     indirect = rad.copy()
     indirect[direct] = 0
     # per channel Σ L·Ω of each part: row sums (float64) times the row's solid angle

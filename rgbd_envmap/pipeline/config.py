@@ -114,6 +114,10 @@ class RenderConfig:
     object_shading: str = "prt"
     #: differential: the fraction τ of the map's energy given to the lights (paper 000 §4.2), the rest to SH.
     tau: float = 0.5
+    #: differential: the lights of the last sampling are kept while the direct part's SH coefficients
+    #: differ from theirs by at most this fraction (Frobenius norm): a lamp that stays put is not
+    #: resampled, nor its shadow terms recomputed, on every depth frame. 0 resamples on every relight.
+    lights_tolerance: float = 0.02
     #: differential: the real geometry: map points within this distance of the object's centre, one per
     #: cube of side ``receiver_spacing_m``; rebuilt every ``geometry_every`` relights.
     receiver_radius_m: float = 0.4
@@ -131,6 +135,7 @@ class RenderConfig:
         check_method(self.light_method, LIGHT_METHODS, "render.light_method")
         check_method(self.object_shading, OBJECT_SHADING, "render.object_shading")
         check_number(self.tau, "render.tau", low=0.0, high=1.0)
+        check_number(self.lights_tolerance, "render.lights_tolerance", low=0.0, high=1.0)
         check_number(self.receiver_radius_m, "render.receiver_radius_m", low=0.0, low_open=True, high=10.0)
         check_number(self.receiver_spacing_m, "render.receiver_spacing_m", low=1e-4, high=1.0)
         check_number(self.geometry_every, "render.geometry_every", low=1, high=1_000_000, integer=True)

@@ -254,6 +254,9 @@ class Pipeline:
         self._relights_since_geometry = 0
         self._light_state = None  # the sampler's state (Q2-Tree, Hemigon), relight to relight
         self._direct_table = None
+        self._lights_sh: np.ndarray | None = None  # the direct part's SH when self.lights was sampled
+        #: relights that kept the last lights (their direct part within render.lights_tolerance)
+        self.lights_kept = 0
         if config.render.enabled or config.shading.auto_bands:
             self._load_object()
         if lighting is None and config.shading.lighting_file is not None:
@@ -687,7 +690,7 @@ class Pipeline:
     def _split_lighting(self, em: EnvironmentMap) -> None:
         """The map's direct part as lights with positions, the indirect rest as SH (paper 000 §4.2):
         ``self.lights`` and ``self.coeffs_indirect`` = the coefficients minus the direct pixels' own."""
-        from rgbd_envmap.lights import HemigonState, LightSet, Q2TreeState, direct_mask, sample_lights
+        from rgbd_envmap.lights import HemigonState, LightSet, Q2TreeState, direct_part, sample_lights
 
         rc = self.config.render
         # On every LIGHT_MAP_STRIDE-th row and column (a 16th of the pixels: the split's histogram and the
@@ -695,17 +698,22 @@ class Pipeline:
         # correction matrix can leave tiny negative values).
         k = LIGHT_MAP_STRIDE
         sub = (slice(k // 2, None, k), slice(k // 2, None, k))
-        radiance = np.maximum(em.radiance[sub], 0.0)
+        radiance = np.maximum(em.radiance[sub], np.float32(0.0), order="C")
         valid = np.ascontiguousarray(em.valid[sub])
-        direct, _ = direct_mask(radiance, rc.tau, valid=valid)
-        ind = self.coeffs.copy()
+        # with the direct pixels' own SH coefficients, from a table of the sub-grid's basis × solid angle
+        table = self._direct_basis(radiance.shape[:2], self.sh_bands_computed)
+        direct, _, sh_direct = direct_part(radiance, rc.tau, table, valid=valid)
+        ind = self.coeffs - sh_direct
+        self.coeffs_indirect = ind
+        last = self._lights_sh
+        if self.lights is not None and last is not None and last.shape == sh_direct.shape and direct.any():
+            ref = float(np.linalg.norm(last))
+            if ref > 0 and float(np.linalg.norm(sh_direct - last)) <= rc.lights_tolerance * ref:
+                self.lights_kept += 1  # the same lights (and, in the shader, their shadow terms)
+                return
         self.lights = None
+        self._lights_sh = sh_direct
         if direct.any():
-            # the direct pixels' own SH coefficients, from a table of the sub-grid's basis × solid angle
-            table = self._direct_basis(direct.shape, self.sh_bands_computed)
-            flat = np.flatnonzero(direct)
-            rad_t = np.ascontiguousarray(radiance.reshape(-1, 3)[flat].T, dtype=np.float64)  # (3, n)
-            ind -= (rad_t @ np.take(table, flat, axis=0)).T
             if self._light_state is None and rc.light_method != "pharr":
                 self._light_state = Q2TreeState() if rc.light_method == "q2tree" else HemigonState()
             self.lights = sample_lights(radiance, rc.lights, rc.light_method, valid=direct,
@@ -717,7 +725,6 @@ class Pipeline:
                 self.lights = LightSet(L.directions[keep], L.power[keep], L.method,
                                        positions=None if L.positions is None else L.positions[keep],
                                        origin=L.origin)
-        self.coeffs_indirect = ind
 
     def _direct_basis(self, shape: tuple[int, int], bands: int) -> np.ndarray:
         """(H·W, bands²) float64: each pixel's SH basis times its solid angle on the light split's

@@ -16,7 +16,7 @@ import numpy as np
 from rgbd_envmap.reference.sh_projection import pixel_directions, pixel_solid_angles  # noqa: F401 (used here and by tests)
 
 __all__ = ["pixel_directions", "pixel_solid_angles", "map_integral", "brute_force_irradiance", "luminance_cdf",
-           "cell_sums", "pharr", "q2tree", "room_map", "LUMINANCE"]
+           "cell_sums", "direct_split", "pharr", "q2tree", "room_map", "LUMINANCE"]
 
 #: Rec. 709 luminance weights.
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
@@ -149,6 +149,34 @@ def q2tree(radiance, n, level, valid=None, a=1.0, b=0.25) -> dict:
         count += 3
     leaves = [(lvl, p) for _, lvl, p in heap] + finest
     return {leaf: sums[leaf[0]][leaf[1]] for leaf in leaves}
+
+
+def direct_split(radiance, tau, valid=None, basis=None) -> tuple[np.ndarray, float, np.ndarray | None]:
+    """The direct part of paper 000's split by a full sort: the valid pixels with positive luminance
+    sorted from the brightest down, their energy Y · Ω accumulated until it reaches τ · (1 − 1e-12) of
+    the total; every valid pixel at or above the luminance reached is direct. Returns (mask (H, W)
+    bool, threshold (inf when none), Σ over direct pixels of radiance × ``basis`` row (K, 3) float64,
+    or None without ``basis`` (H·W, K))."""
+    rad = np.asarray(radiance, np.float64)
+    H, W = rad.shape[:2]
+    ok = np.ones((H, W), bool) if valid is None else np.asarray(valid, bool)
+    y = LUMINANCE[0] * rad[..., 0] + LUMINANCE[1] * rad[..., 1] + LUMINANCE[2] * rad[..., 2]
+    e = y * pixel_solid_angles(H, W)
+    total = e[ok].sum()
+    mask = np.zeros((H, W), bool)
+    threshold = np.inf
+    if tau > 0 and total > 0:
+        pos = ok & (y > 0)
+        yv, ev = y[pos], e[pos]
+        order = np.argsort(-yv, kind="stable")
+        cum = np.cumsum(ev[order])
+        m = min(int(np.searchsorted(cum, tau * total * (1 - 1e-12), side="left")), yv.size - 1)
+        threshold = float(yv[order[m]])
+        mask = ok & (y >= threshold)
+    if basis is None:
+        return mask, threshold, None
+    b = np.asarray(basis, np.float64).reshape(H * W, -1)
+    return mask, threshold, (rad.reshape(-1, 3)[mask.ravel()].T @ b[mask.ravel()]).T
 
 
 def room_map(height: int = 128, width: int = 256, lamp: float = 200.0, seed: int = 0

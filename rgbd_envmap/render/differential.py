@@ -279,7 +279,8 @@ class DifferentialShader:
     ray). The shadow rays are kept from one call to the next and reused for a light seen from the
     object's centre within ``cache_deg`` (0.5°) of a kept one: the lamp of a captured map stays put
     from one depth frame to the next, up to the jitter of its power-weighted mean position as the map
-    is updated.
+    is updated. Called again with the same :class:`LightSet` object (a caller that kept its lights),
+    the lights' irradiance terms themselves are reused and only the SH part is recomputed.
 
     :meth:`shade` returns the object's vertex radiance and the receivers' per-vertex ratio
     E_with / E_without (module docstring)."""
@@ -298,6 +299,9 @@ class DifferentialShader:
         # receiver visibility (R,) bool, object visibility (V,) bool or None)
         self._visibility: list[tuple[str, np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._terms = None  # (n·x, |x|²) of the receivers and of the object's vertices
+        # the last light set (a LightSet is frozen: the same object is the same lights) with its
+        # direct irradiance at the receivers without / with the object and at the object's vertices
+        self._direct: tuple | None = None
 
     @property
     def cached_lights(self) -> tuple[tuple, ...]:
@@ -319,6 +323,7 @@ class DifferentialShader:
         self._t1 = t0 - self._occlusion.blocked_sh
         self._visibility = []
         self._terms = None
+        self._direct = None
 
     def _seen_from_object(self, lights: LightSet) -> tuple[list[str], np.ndarray]:
         """Each light's kind ("p" positioned, "d" distant) and unit direction from the object's centre."""
@@ -395,15 +400,23 @@ class DifferentialShader:
         if object_colours is not None:
             object_colours = check_array(object_colours, "object_colours", shape=(V, 3), dtype="float")
         has = lights is not None and len(lights) > 0
+        with_object = object_colours is None
         if has:
-            w0, w1, wo = self._light_weights(lights, with_object=object_colours is None)
+            kept = self._direct
+            if kept is not None and kept[0] is lights and kept[1] == with_object:
+                d0, d1, do = kept[2:]  # the same light set as last call: its terms are unchanged
+            else:
+                w0, w1, wo = self._light_weights(lights, with_object=with_object)
+                d0, d1 = w0 @ lights.power, w1 @ lights.power
+                do = None if wo is None else wo @ lights.power
+                self._direct = (lights, with_object, d0, d1, do)
         a = np.asarray(albedo, np.float64).reshape(3)
         if object_colours is not None:
             colours = object_colours
         else:
             colours = prt_shade(np.asarray(transfer)[:, :nk], c, a)
             if has:
-                colours = (colours + (a / np.pi) * (wo @ lights.power)).astype(np.float32)
+                colours = (colours + (a / np.pi) * do).astype(np.float32)
         R = len(self.receivers)
         if R == 0:
             return colours, np.ones((0, 3), np.float32)
@@ -412,8 +425,8 @@ class DifferentialShader:
         l_obj = colours.astype(np.float64).mean(axis=0)
         e1 += self._occlusion.blocked_cos[:, None] * l_obj[None]
         if has:
-            e0 += w0 @ lights.power
-            e1 += w1 @ lights.power
+            e0 += d0
+            e1 += d1
         ratio = receiver_ratio(e0, e1)
         return colours, ratio
 

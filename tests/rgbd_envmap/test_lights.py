@@ -12,7 +12,7 @@ from rgbd_envmap.errors import (DTypeError, InvalidInputError, NonFiniteError, R
                                 ShapeError, UnknownMethodError)
 from rgbd_envmap.geometry import equirect_pixel_index
 from rgbd_envmap.lights import (METHODS, HemigonState, LightSet, Q2TreeState, irradiance, map_integral,
-                                merge_lights, sample_lights, split_direct_indirect)
+                                direct_mask, direct_part, merge_lights, sample_lights, split_direct_indirect)
 from rgbd_envmap.lights import cells as cells_mod
 from rgbd_envmap.lights import q2tree as q2
 from rgbd_envmap.lights.hemisphere import hemisphere_to_square, square_to_hemisphere
@@ -491,6 +491,84 @@ def test_split_counts_energy_once(room, tau):
     e = y * ref.pixel_solid_angles(*rad.shape[:2])
     dimmest = s.direct & (y == y[s.direct].min())
     assert (e[s.direct & ~dimmest].sum() / e[valid].sum()) < tau
+
+
+def _basis_table(H, W, bands=5):
+    from rgbd_envmap import sh
+    from rgbd_envmap.geometry import equirect_directions, equirect_solid_angles
+
+    return sh.basis(equirect_directions(H, W).reshape(-1, 3), bands) * equirect_solid_angles(H, W).reshape(-1, 1)
+
+
+def _maps():
+    """The room, a map of one repeated value (every pixel in the crossing bin: ties), a random map
+    with a few zero and huge pixels, and a map black but for one pixel at the pole and one at the seam."""
+    rng = np.random.default_rng(7)
+    rad = ref.room_map(64, 128)[0]
+    flat = np.full((32, 64, 3), 0.25, np.float32)
+    wild = rng.gamma(0.3, 1.0, (48, 96, 3)).astype(np.float32)
+    wild[::7, ::5] = 0
+    wild[3, 4] = 1e6
+    dots = np.zeros((40, 80, 3), np.float64)
+    dots[0, 5] = 10.0
+    dots[20, 79] = 3.0
+    return [rad, flat, wild, dots]
+
+
+@pytest.mark.parametrize("tau", [0.0, 0.05, 0.5, 0.95, 1.0])
+def test_direct_part_kernel_is_the_full_sort_reference(tau):
+    """The compiled split (histogram + one sorted bin) against a full sort: the same mask and threshold
+    exactly, the direct SH sums to float64 rounding; with and without a valid mask."""
+    rng = np.random.default_rng(3)
+    for rad in _maps():
+        H, W = rad.shape[:2]
+        table = _basis_table(H, W)
+        for valid in (None, rng.random((H, W)) > 0.4):
+            mask, thr, shd = direct_part(rad, tau, table, valid=valid)
+            m2, t2, s2 = ref.direct_split(rad, tau, valid, table)
+            np.testing.assert_array_equal(mask, m2)
+            assert thr == t2
+            np.testing.assert_allclose(shd, s2, rtol=1e-12, atol=1e-12 * max(np.abs(s2).max(), 1e-300))
+            m3, t3 = direct_mask(rad, tau, valid)
+            np.testing.assert_array_equal(m3, mask)
+            assert t3 == thr
+
+
+def test_direct_part_sh_is_the_projection_of_the_direct_pixels(room):
+    """Σ direct radiance × basis × Ω = the SH projection (brute force) of the map zeroed off the direct part."""
+    from rgbd_envmap.reference.sh_projection import project_equirect
+
+    rad = room[0]
+    H, W = rad.shape[:2]
+    mask, _, shd = direct_part(rad, 0.5, _basis_table(H, W))
+    only = np.where(mask[..., None], rad, np.float32(0))
+    want = project_equirect(only, bands=5)
+    np.testing.assert_allclose(shd, want, rtol=0, atol=1e-5 * np.abs(want).max())
+
+
+def test_direct_part_hard_cases():
+    rad = np.zeros((16, 32, 3), np.float32)
+    table = _basis_table(16, 32)
+    mask, thr, shd = direct_part(rad, 0.5, table)  # no energy: nothing direct
+    assert not mask.any() and thr == np.inf and not shd.any()
+    rad[3, 3] = 2.0
+    valid = np.zeros((16, 32), bool)
+    valid[3, 3] = True
+    mask, thr, _ = direct_part(rad, 0.5, table, valid=valid)
+    assert mask.sum() == 1 and thr == pytest.approx(2.0)
+    bad = rad.copy()
+    bad[5, 5, 1] = np.inf
+    with pytest.raises(NonFiniteError):
+        direct_part(bad, 0.5, table)
+    bad[5, 5, 1] = np.nan
+    direct_part(bad, 0.5, table, valid=valid)  # a NaN outside the valid pixels is not read
+    bad[5, 5, 1] = -1.0
+    with pytest.raises(RangeError):
+        direct_part(bad, 0.5, table)
+    with pytest.raises(ShapeError):
+        direct_part(rad, 0.5, table[:-1])
+    with pytest.raises(InvalidInputError):
+        direct_part(rad, 0.5, table, valid=np.zeros((16, 32), bool))
 
 
 def test_split_puts_the_lamp_in_the_direct_part(room):

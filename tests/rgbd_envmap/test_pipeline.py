@@ -149,3 +149,24 @@ def test_auto_bands_picks_the_fewest_bands_within_tolerance(sim, packets):
     assert any(r.stage == "Select SH bands" for r in pipe.timer.records)
     strict, _ = run(sim, packets, replace(cfg, shading=replace(cfg.shading, band_tolerance=1e-9)))
     assert strict.bands >= pipe.bands
+
+
+@pytest.mark.parametrize("tolerance", [0.0, 1.0])
+def test_lights_are_kept_while_the_direct_part_stays_within_tolerance(tolerance):
+    """render.lights_tolerance: 0 samples the lights on every relight; 1 keeps the lights while the
+    direct part's SH stays within 100 % of theirs (the first frames' map, still filling, changes more)."""
+    sim = Simulator(load_scene("office_unlit"), load_trajectory("orbit_inward"), TangoDeviceConfig(colour=ColourCameraConfig(width=320, height=180)), seed=4)
+    cfg = replace(CFG, render=RenderConfig(enabled=True, backend="numba", lights_tolerance=tolerance),
+                  object=ObjectConfig(name="blob", prt_dirs=128, plane_resolution=16))
+    pipe = Pipeline(cfg, sim.calibration, ORIGIN)
+    seen = []
+    for sp in sim.run(1.0):
+        for r in pipe.feed(sp.packet):
+            if isinstance(r, DepthStep) and r.sh_updated and pipe.lights is not None:
+                seen.append(pipe.lights)
+    assert len(seen) >= 3
+    distinct = len({id(s) for s in seen})
+    assert distinct == len(seen) - pipe.lights_kept  # a kept relight keeps the very same light set
+    assert (pipe.lights_kept == 0) == (tolerance == 0.0)
+    assert np.isfinite(pipe.receiver_ratio).all()
+    pipe.close()

@@ -321,3 +321,36 @@ def test_shader_reuses_the_rays_of_a_light_that_moved_less_than_cache_deg():
     assert r1[0].max() < 0.2 and np.abs(r1[1] - 1).max() < 1e-3  # (the lit object reflects onto both)
     shader.shade(lights_at([0.05, 0, 2.0]), coeffs, np.zeros((len(v), 4)), np.full(3, 0.5))
     assert shader.cached_lights != first  # 1.4°: cast anew
+
+
+def test_shader_called_again_with_the_same_lights_reuses_their_terms_exactly():
+    """The same LightSet object again (a pipeline that kept its lights): only the SH part is recomputed,
+    and the result is what a fresh shader computes for those lights and the new coefficients."""
+    c = np.array([0.0, 0.0, 0.05])
+    v, f = icosphere(0.04, c, 2)
+    nv = (v - c) / 0.04
+    g = np.linspace(-0.3, 0.3, 9)
+    xy = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    pts = np.concatenate([xy, np.zeros((len(xy), 1))], 1)
+    rec = ReceiverMesh(pts, np.tile([0, 0, 1.0], (len(pts), 1)), np.zeros((0, 3), np.int32))
+    p = np.array([[0.1, 0.0, 2.0], [-1.0, 0.5, 1.5]])
+    lights = LightSet(p / np.linalg.norm(p, axis=1, keepdims=True), np.array([[1.0, 0.9, 0.8], [0.2, 0.2, 0.3]]), "t",
+                      positions=p, origin=np.zeros(3))
+    transfer = np.random.default_rng(0).uniform(0, 0.1, (len(v), 9))
+    c1, c2 = np.zeros((9, 3)), np.zeros((9, 3))
+    c1[0], c2[0] = 0.3, 0.5
+    c2[2] = 0.1
+    for obj in (None, np.full((len(v), 3), 0.2, np.float32)):
+        shader = DifferentialShader(v, f, nv, samples=16)
+        shader.set_receivers(rec, 3)
+        shader.shade(lights, c1, transfer, np.full(3, 0.5), object_colours=obj)
+        got = shader.shade(lights, c2, transfer, np.full(3, 0.5), object_colours=obj)
+        fresh = DifferentialShader(v, f, nv, samples=16)
+        fresh.set_receivers(rec, 3)
+        want = fresh.shade(lights, c2, transfer, np.full(3, 0.5), object_colours=obj)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])
+        # another light set, equal or not, is computed anew
+        moved = LightSet(lights.directions, 2 * lights.power, "t", positions=p, origin=np.zeros(3))
+        twice = shader.shade(moved, c2, transfer, np.full(3, 0.5), object_colours=obj)
+        assert not np.array_equal(twice[1], got[1])
