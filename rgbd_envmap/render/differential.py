@@ -422,7 +422,8 @@ class DifferentialShader:
             return colours, np.ones((0, 3), np.float32)
         e0 = np.maximum(self._t0[:, :nk] @ c, 0.0)
         e1 = np.maximum(self._t1[:, :nk] @ c, 0.0)
-        l_obj = colours.astype(np.float64).mean(axis=0)
+        # the object's mean radiance (a product with ones: a column mean of a (V, 3) array is ~10× slower)
+        l_obj = (np.ones(len(colours)) @ colours.astype(np.float64)) / max(len(colours), 1)
         e1 += self._occlusion.blocked_cos[:, None] * l_obj[None]
         if has:
             e0 += d0
@@ -436,4 +437,4 @@ class DifferentialShader:
         ratio of 1 as it is), so they need not be rasterised."""
         far = (np.abs(np.asarray(ratio, np.float64) - 1.0) > eps).any(axis=1)
         f = self.receivers.faces
-        return np.ascontiguousarray(f[far[f].any(axis=1)])
+        return np.ascontiguousarray(f[far[f[:, 0]] | far[f[:, 1]] | far[f[:, 2]]])
