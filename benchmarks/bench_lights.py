@@ -36,7 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from rgbd_envmap.lights import HemigonState, Q2TreeState, irradiance, sample_lights, split_direct_indirect
+from rgbd_envmap.lights import HemigonState, Q2TreeState, direct_part, irradiance, sample_lights, split_direct_indirect
 from rgbd_envmap.reference import lights as ref
 
 #: paper 002 Table 1, Nokia N900, 360×90 hemisphere map (Q2-Tree: 12×100×100 HEALPix), ms.
@@ -68,6 +68,12 @@ def main() -> None:
         return flicker[counters[case] % 2]
 
     q2_state, hemi_state = Q2TreeState(), HemigonState()
+    from rgbd_envmap import sh
+    from rgbd_envmap.geometry import equirect_directions, equirect_solid_angles
+
+    sub = np.ascontiguousarray(rad[2::4, 2::4])  # the pipeline's sub-grid (a table for the full map: 400 MB)
+    H, W = sub.shape[:2]
+    basis_table = sh.basis(equirect_directions(H, W).reshape(-1, 3), 5) * equirect_solid_angles(H, W).reshape(-1, 1)
     cases = {}
     for method in ("pharr", "hemigon", "q2tree"):
         for n in (200, 1000, 10000):
@@ -80,6 +86,8 @@ def main() -> None:
                                      None, None)
     cases["q2tree n=1000 + depth"] = (lambda: sample_lights(rad, 1000, "q2tree", depth_m=dep, origin=org), None, None)
     cases["split tau=0.5"] = (lambda: split_direct_indirect(rad, 0.5), None, None)
+    cases["direct_part tau=0.5 (500×250 sub-grid, mask + SH, 5 bands)"] = (lambda: direct_part(sub, 0.5, basis_table),
+                                                                          None, None)
 
     normals = fibonacci_normals(64)
     truth = ref.brute_force_irradiance(rad, normals) @ ref.LUMINANCE
