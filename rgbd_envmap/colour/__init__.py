@@ -18,7 +18,7 @@ from rgbd_envmap.colour.ccm import (
     invert_ccm,
     matrix_gain,
 )
-from rgbd_envmap.colour.hdr import HDRConfig, clipped_pixels, exposure_scale, hdr_frame
+from rgbd_envmap.colour.hdr import HDRConfig, clipped_pixels, exposure_scale, hdr_frame, low_confidence_pixels
 from rgbd_envmap.colour.nv21 import decode_nv21, encode_nv21, linear_to_srgb, srgb8_to_linear_lut, srgb_to_linear
 
 __all__ = [
@@ -44,4 +44,5 @@ __all__ = [
     "clipped_pixels",
     "exposure_scale",
     "hdr_frame",
+    "low_confidence_pixels",
 ]

@@ -22,10 +22,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from rgbd_envmap._kernels.hdr_flags import low_confidence_kernel
 from rgbd_envmap.checks import check_array, check_flag, check_instance, check_number
 from rgbd_envmap.types import RGBDFrame
 
-__all__ = ["HDRConfig", "clipped_pixels", "exposure_scale", "hdr_frame"]
+__all__ = ["HDRConfig", "clipped_pixels", "low_confidence_pixels", "exposure_scale", "hdr_frame"]
 
 
 @dataclass(frozen=True)
@@ -55,9 +56,22 @@ class HDRConfig:
 def clipped_pixels(rgb: np.ndarray, clip_level: float = 0.95) -> np.ndarray:
     """(H, W) bool: pixels of (H, W, 3) decoded linear RGB with any channel above ``clip_level``
     (NaN is not clipped)."""
+    return low_confidence_pixels(rgb, clip_level)
+
+
+def low_confidence_pixels(rgb: np.ndarray, clip_level: float = 0.95, dark: float | None = None) -> np.ndarray:
+    """(H, W) bool: the pixels HDR capture flags in (H, W, 3) decoded linear RGB: any channel above
+    ``clip_level`` (clipped) or, with ``dark`` given (a bracket frame), no channel at ``dark`` or
+    above (too dark to measure; the live frames see it better). NaN neither clips nor reaches
+    ``dark``. The levels are compared in the array's precision (float32 for the decoded frames)."""
     rgb = check_array(rgb, "rgb", shape=("H", "W", 3), dtype="float")
     level = check_number(clip_level, "clip_level", low=0.0, high=1.0, low_open=True)
-    return (rgb > np.float32(level)).any(axis=-1)
+    use_dark = dark is not None
+    dark_v = check_number(dark, "dark", low=0.0, high=level) if use_dark else 0.0
+    out = np.empty(rgb.shape[:2], bool)
+    t = rgb.dtype.type
+    low_confidence_kernel(rgb, t(level), t(dark_v), use_dark, out)
+    return out
 
 
 def exposure_scale(reference_exposure: float | None, exposure: float | None) -> float:

@@ -22,15 +22,18 @@ References:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
 from rgbd_envmap._kernels import lights_split
-from rgbd_envmap.checks import check_array, check_number
+from rgbd_envmap.checks import check_array, check_number, check_positive_int
 from rgbd_envmap.errors import RangeError
 from rgbd_envmap.lights.maps import LUMINANCE_WEIGHTS, check_inputs, luminance, raise_bad_values
+from rgbd_envmap.sh.basis import check_bands
+from rgbd_envmap.sh.projection import projection_tables
 
-__all__ = ["DirectIndirect", "direct_mask", "direct_part", "split_direct_indirect"]
+__all__ = ["DirectIndirect", "direct_mask", "direct_part", "light_grid", "split_direct_indirect"]
 
 
 @dataclass(frozen=True)
@@ -63,6 +66,21 @@ class DirectIndirect:
             raise RangeError(f"direct: expected an (H, W) bool mask matching indirect {self.indirect.shape}")
 
 
+def light_grid(radiance: object, stride: int) -> np.ndarray:
+    """The coarse grid a live pipeline splits and samples: every ``stride``-th row and column of an
+    equirect map (H, W, 3) float32 or float64, from ``stride // 2`` (a pixel near the middle of
+    each stride × stride block), with negative values set to 0 (a correction matrix can leave tiny negatives) and NaN kept (the split reports
+    it). A new C-contiguous array of the map's dtype, (len(range(s // 2, H, s)), len(range(s // 2, W, s)), 3)."""
+    rad = check_array(radiance, "radiance", shape=("H", "W", 3), dtype="float")
+    s = check_positive_int(stride, "stride")
+    H, W = rad.shape[:2]
+    o = s // 2
+    out = np.empty((len(range(o, H, s)), len(range(o, W, s)), 3), rad.dtype)
+    if out.size:
+        lights_split.clamped_subgrid(rad, s, out)
+    return out
+
+
 def direct_mask(radiance: object, tau: float, valid: object = None) -> tuple[np.ndarray, float]:
     """The direct part of a split alone: ((H, W) bool, the threshold) for an equirect map (H, W, 3),
     a fraction ``tau`` ∈ [0, 1] and ``valid`` (H, W) bool or None, with the checks of
@@ -75,11 +93,24 @@ def direct_mask(radiance: object, tau: float, valid: object = None) -> tuple[np.
 def direct_part(radiance: object, tau: float, basis: object, valid: object = None
                 ) -> tuple[np.ndarray, float, np.ndarray]:
     """:func:`direct_mask` and the direct pixels' own SH coefficients in the same pass: (mask,
-    threshold, (K, 3) float64 Σ over direct pixels of radiance × ``basis`` row), ``basis`` (H·W, K)
-    float64 each pixel's SH basis times its solid angle (row-major pixels). The indirect part's
-    coefficients are then the whole map's minus these, without projecting a second map."""
+    threshold, (K, 3) float64 Σ over direct pixels of radiance × basis × solid angle). ``basis``:
+    an int n, the library's real SH basis of n bands (:func:`rgbd_envmap.sh.basis`, K = n², at the
+    exact pixel-centre directions, from its separable factors: no table), or an (H·W, K) float
+    table of each pixel's basis values times its solid angle (row-major pixels). The indirect
+    part's coefficients are then the whole map's minus these, without projecting a second map."""
     direct, threshold, sh = _direct(radiance, tau, valid, basis)
     return direct, threshold, sh
+
+
+@lru_cache(maxsize=4)
+def _trig_tables(width: int, bands: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n, W) float64 cos(m φ_u), sin(m φ_u) at the pixel-centre azimuths φ_u = 2π (u + ½) / W − π."""
+    phi = 2.0 * np.pi * (np.arange(width) + 0.5) / width - np.pi
+    m = np.arange(bands)[:, None]
+    tc, ts = np.ascontiguousarray(np.cos(m * phi)), np.ascontiguousarray(np.sin(m * phi))
+    tc.setflags(write=False)
+    ts.setflags(write=False)
+    return tc, ts
 
 
 def _direct(radiance: object, tau: float, valid: object, basis: object) -> tuple[np.ndarray, float, np.ndarray]:
@@ -88,18 +119,29 @@ def _direct(radiance: object, tau: float, valid: object, basis: object) -> tuple
     tau = check_number(tau, "tau", low=0.0, high=1.0)
     m = check_inputs(radiance, valid)
     H, W = m.radiance.shape[:2]
+    none2, none1 = np.zeros((1, 1)), np.zeros(1, np.int64)
+    tc = ts = row_w = none2
+    m_abs = m_sin = none1
+    table = np.zeros((1, 0))
     if basis is None:
-        table, use_basis = np.zeros((1, 0)), False
+        mode, K = 0, 0
+    elif isinstance(basis, (int, np.integer)) and not isinstance(basis, bool):
+        n = check_bands(basis, "basis")
+        tables = projection_tables(H, W, n)
+        tc, ts = _trig_tables(W, n)
+        row_w, m_abs, m_sin = tables.row_w, tables.m_abs, tables.m_sin
+        mode, K = 2, n * n
     else:
         table = check_array(basis, "basis", shape=(H * W, "K"), dtype="float")
-        table, use_basis = np.ascontiguousarray(table, np.float64), True
+        table, mode, K = np.ascontiguousarray(table, np.float64), 1, table.shape[1]
     y = np.empty((H, W))
     mask = np.empty((H, W), bool)
-    sh = np.zeros((table.shape[1] if use_basis else 0, 3))
+    sh = np.zeros((K, 3))
     valid_arr = m.valid if m.valid is not None else np.ones((1, 1), bool)
     w = LUMINANCE_WEIGHTS
     threshold, _, lowest, finite = lights_split.direct_split(
-        m.radiance, valid_arr, m.valid is not None, m.row_omega, w[0], w[1], w[2], tau, table, use_basis, y, mask, sh)
+        m.radiance, valid_arr, m.valid is not None, m.row_omega, w[0], w[1], w[2], tau, table, mode,
+        tc, ts, row_w, m_abs, m_sin, y, mask, sh)
     raise_bad_values(m, lowest, finite)
     return mask, float(threshold), sh
 

@@ -53,7 +53,7 @@ import numpy as np
 
 from rgbd_envmap import sh
 from rgbd_envmap.checks import check_array, check_instance
-from rgbd_envmap.colour import clipped_pixels, decode_nv21, exposure_scale, hdr_frame
+from rgbd_envmap.colour import decode_nv21, exposure_scale, hdr_frame, low_confidence_pixels
 from rgbd_envmap.envmap.map import EnvironmentMap
 from rgbd_envmap.envmap.translation import translate
 from rgbd_envmap.errors import InvalidInputError
@@ -253,7 +253,6 @@ class Pipeline:
         self._receiver_faces = np.zeros((0, 3), np.int32)
         self._relights_since_geometry = 0
         self._light_state = None  # the sampler's state (Q2-Tree, Hemigon), relight to relight
-        self._direct_table = None
         self._lights_sh: np.ndarray | None = None  # the direct part's SH when self.lights was sampled
         #: relights that kept the last lights (their direct part within render.lights_tolerance)
         self.lights_kept = 0
@@ -625,10 +624,8 @@ class Pipeline:
         """HDR capture's flags (docs/design/hdr.md): pixels with a clipped channel and, in a bracket
         frame, those darker than ``hdr.bracket_dark`` in every channel (the live frames measure them
         better); the map never lets such a sample overwrite an unflagged colour of its surface."""
-        flags = clipped_pixels(rgb, self.config.hdr.clip_level)
-        if bracket:
-            flags |= ~(rgb >= np.float32(self.config.hdr.bracket_dark)).any(axis=-1)
-        return flags
+        hdr = self.config.hdr
+        return low_confidence_pixels(rgb, hdr.clip_level, hdr.bracket_dark if bracket else None)
 
     def _capture_and_relight(self, frame: RGBDFrame, filled: RGBDFrame, *, reliable: np.ndarray | None = None,
                              depth_m: np.ndarray | None = None, known: np.ndarray | None = None,
@@ -690,7 +687,7 @@ class Pipeline:
     def _split_lighting(self, em: EnvironmentMap) -> None:
         """The map's direct part as lights with positions, the indirect rest as SH (paper 000 §4.2):
         ``self.lights`` and ``self.coeffs_indirect`` = the coefficients minus the direct pixels' own."""
-        from rgbd_envmap.lights import HemigonState, LightSet, Q2TreeState, direct_part, sample_lights
+        from rgbd_envmap.lights import HemigonState, LightSet, Q2TreeState, direct_part, light_grid, sample_lights
 
         rc = self.config.render
         # On every LIGHT_MAP_STRIDE-th row and column (a 16th of the pixels: the split's histogram and the
@@ -698,11 +695,10 @@ class Pipeline:
         # correction matrix can leave tiny negative values).
         k = LIGHT_MAP_STRIDE
         sub = (slice(k // 2, None, k), slice(k // 2, None, k))
-        radiance = np.maximum(em.radiance[sub], np.float32(0.0), order="C")
+        radiance = light_grid(em.radiance, k)
         valid = np.ascontiguousarray(em.valid[sub])
-        # with the direct pixels' own SH coefficients, from a table of the sub-grid's basis × solid angle
-        table = self._direct_basis(radiance.shape[:2], self.sh_bands_computed)
-        direct, _, sh_direct = direct_part(radiance, rc.tau, table, valid=valid)
+        # with the direct pixels' own SH coefficients (the basis from its separable factors)
+        direct, _, sh_direct = direct_part(radiance, rc.tau, self.sh_bands_computed, valid=valid)
         ind = self.coeffs - sh_direct
         self.coeffs_indirect = ind
         last = self._lights_sh
@@ -725,19 +721,6 @@ class Pipeline:
                 self.lights = LightSet(L.directions[keep], L.power[keep], L.method,
                                        positions=None if L.positions is None else L.positions[keep],
                                        origin=L.origin)
-
-    def _direct_basis(self, shape: tuple[int, int], bands: int) -> np.ndarray:
-        """(H·W, bands²) float64: each pixel's SH basis times its solid angle on the light split's
-        sub-grid (computed once per grid and band count: 25 MB at 500 × 250 and 5 bands)."""
-        from rgbd_envmap.geometry import equirect_directions, equirect_solid_angles
-
-        key = (shape, bands)
-        if self._direct_table is None or self._direct_table[0] != key:
-            H, W = shape
-            y = sh.basis(equirect_directions(H, W).reshape(-1, 3), bands)
-            y *= equirect_solid_angles(H, W).reshape(-1, 1)
-            self._direct_table = (key, np.ascontiguousarray(y, np.float64))
-        return self._direct_table[1]
 
     def _use_coefficients(self, timer: StageTimer) -> None:
         """Band choice and shading of the object from ``self.coeffs``."""

@@ -6,14 +6,17 @@ and the ITU-R BT.601 formulas that NV21 decoding and encoding approximate.
 - :func:`bt601_decode`, :func:`bt601_encode`: limited-range Y'CbCr ↔ R'G'B' (Kr = 0.299,
   Kb = 0.114), real-valued; :func:`rgbd_envmap.colour.decode_nv21` (OpenCV's fixed-point
   ``COLOR_YUV2RGB_NV21``) is within ±1 level of the rounded decode;
-- :func:`nv21_planes`: the full-resolution Y, U, V planes of an NV21 buffer.
+- :func:`nv21_planes`: the full-resolution Y, U, V planes of an NV21 buffer;
+- :func:`low_confidence_reference`: HDR capture's clip and bracket-dark flags
+  (:func:`rgbd_envmap.colour.low_confidence_pixels`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["KR", "KB", "KG", "ccm_least_squares_reference", "bt601_decode", "bt601_encode", "nv21_planes"]
+__all__ = ["KR", "KB", "KG", "ccm_least_squares_reference", "bt601_decode", "bt601_encode", "nv21_planes",
+           "low_confidence_reference"]
 
 #: ITU-R BT.601 luma weights; limited range: Y' in [16, 235], Cb/Cr in [16, 240] around 128.
 KR, KB = 0.299, 0.114
@@ -57,3 +60,21 @@ def nv21_planes(buf: np.ndarray, h: int, w: int) -> tuple[np.ndarray, np.ndarray
         return np.repeat(np.repeat(c, 2, axis=0), 2, axis=1)
 
     return y, up(vu[..., 1]), up(vu[..., 0])
+
+
+def low_confidence_reference(rgb: np.ndarray, level: float, dark: float | None = None) -> np.ndarray:
+    """HDR capture's flags, one pixel at a time: a pixel of (H, W, 3) linear RGB is flagged when any
+    channel exceeds ``level`` (clipped) or, with ``dark`` given (a bracket frame), when no channel
+    reaches ``dark``. NaN compares false both ways. ``level`` and ``dark`` are compared in the
+    array's own precision."""
+    h, w, _ = rgb.shape
+    level_t, dark_t = rgb.dtype.type(level), rgb.dtype.type(0.0 if dark is None else dark)
+    out = np.zeros((h, w), bool)
+    for r in range(h):
+        for c in range(w):
+            px = [rgb[r, c, k] for k in range(3)]
+            flag = any(v > level_t for v in px)
+            if dark is not None and not any(v >= dark_t for v in px):
+                flag = True
+            out[r, c] = flag
+    return out

@@ -16,7 +16,7 @@ import numpy as np
 from rgbd_envmap.reference.sh_projection import pixel_directions, pixel_solid_angles  # noqa: F401 (used here and by tests)
 
 __all__ = ["pixel_directions", "pixel_solid_angles", "map_integral", "brute_force_irradiance", "luminance_cdf",
-           "cell_sums", "direct_split", "pharr", "q2tree", "room_map", "LUMINANCE"]
+           "cell_sums", "direct_split", "light_grid", "pharr", "q2tree", "room_map", "LUMINANCE"]
 
 #: Rec. 709 luminance weights.
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
@@ -177,6 +177,22 @@ def direct_split(radiance, tau, valid=None, basis=None) -> tuple[np.ndarray, flo
         return mask, threshold, None
     b = np.asarray(basis, np.float64).reshape(H * W, -1)
     return mask, threshold, (rad.reshape(-1, 3)[mask.ravel()].T @ b[mask.ravel()]).T
+
+
+def light_grid(radiance, stride) -> np.ndarray:
+    """The pipeline's coarse light grid, pixel by pixel: pixel (v, u) is the map's pixel
+    (s // 2 + v·s, s // 2 + u·s), each channel below 0 set to 0 (NaN stays NaN)."""
+    rad = np.asarray(radiance)
+    H, W = rad.shape[:2]
+    o = stride // 2
+    rows, cols = range(o, H, stride), range(o, W, stride)
+    out = np.empty((len(rows), len(cols), 3), rad.dtype)
+    for v, r in enumerate(rows):
+        for u, c in enumerate(cols):
+            for k in range(3):
+                x = rad[r, c, k]
+                out[v, u, k] = 0 if x < 0 else x
+    return out
 
 
 def room_map(height: int = 128, width: int = 256, lamp: float = 200.0, seed: int = 0

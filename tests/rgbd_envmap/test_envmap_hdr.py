@@ -5,7 +5,7 @@ reference), and the frame-level helpers of rgbd_envmap.colour.hdr."""
 import numpy as np
 import pytest
 
-from rgbd_envmap.colour import HDRConfig, clipped_pixels, exposure_scale, hdr_frame
+from rgbd_envmap.colour import HDRConfig, clipped_pixels, exposure_scale, hdr_frame, low_confidence_pixels
 from rgbd_envmap.envmap import EnvironmentMap, UpdateConfig, clip_flags, update
 from rgbd_envmap.errors import DTypeError, RangeError, ShapeError
 from rgbd_envmap.geometry import equirect_pixel_index
@@ -144,6 +144,52 @@ def test_clipped_pixels_flag_any_channel_above_the_level():
     np.testing.assert_array_equal(clipped_pixels(rgb), [[False, True, False, True]])
     with pytest.raises(RangeError, match="clip_level"):
         clipped_pixels(rgb, 1.5)
+
+
+def _edge_cases(dtype):
+    """Random colours with every hard value a decoded frame can hold: both levels exactly, their
+    neighbouring floats, 0, negatives, NaN and ±inf, in every channel."""
+    rng = np.random.default_rng(7)
+    rgb = rng.uniform(-0.1, 1.2, (37, 29, 3)).astype(dtype)
+    specials = np.array([0.95, 0.01, np.nextafter(dtype(0.95), dtype(2)), np.nextafter(dtype(0.01), dtype(0)),
+                         0.0, -1.0, np.nan, np.inf, -np.inf, 1.0], dtype)
+    pick = rng.random(rgb.shape) < 0.3
+    rgb[pick] = rng.choice(specials, int(pick.sum()))
+    return rgb
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("dark", [None, 0.01, 0.0, 0.95])
+def test_low_confidence_pixels_equal_the_reference(dtype, dark):
+    from rgbd_envmap.reference.colour import low_confidence_reference
+
+    rgb = _edge_cases(dtype)
+    want = low_confidence_reference(rgb, 0.95, dark)
+    got = low_confidence_pixels(rgb, 0.95, dark)
+    assert got.dtype == bool and got.shape == rgb.shape[:2]
+    np.testing.assert_array_equal(got, want)
+    # the numpy forms the pipeline used before the kernel
+    old = (rgb > dtype(0.95)).any(axis=-1)
+    if dark is not None:
+        old |= ~(rgb >= dtype(dark)).any(axis=-1)
+    np.testing.assert_array_equal(got, old)
+    # a strided view (a crop of a larger frame) gives the same flags
+    np.testing.assert_array_equal(low_confidence_pixels(rgb[::2, 1::3], 0.95, dark), want[::2, 1::3])
+
+
+def test_low_confidence_pixels_hard_cases():
+    empty = np.zeros((0, 5, 3), np.float32)
+    assert low_confidence_pixels(empty).shape == (0, 5)
+    one = np.array([[[np.nan, np.nan, np.nan]]], np.float32)
+    assert not low_confidence_pixels(one)[0, 0]  # NaN does not clip ...
+    assert low_confidence_pixels(one, dark=0.01)[0, 0]  # ... nor reach the dark level
+    assert low_confidence_pixels(np.full((1, 1, 3), 0.5), 1.0, 0.5).sum() == 0  # float64; the levels inclusive as stated
+    with pytest.raises(RangeError, match="dark"):
+        low_confidence_pixels(one, 0.5, 0.6)  # a dark level above the clip level
+    with pytest.raises(ShapeError, match="rgb"):
+        low_confidence_pixels(np.zeros((4, 4), np.float32))
+    with pytest.raises(DTypeError, match="rgb"):
+        low_confidence_pixels(np.zeros((2, 2, 3), np.uint8))
 
 
 def test_exposure_scale_and_hdr_frame():

@@ -12,7 +12,7 @@ from rgbd_envmap.errors import (DTypeError, InvalidInputError, NonFiniteError, R
                                 ShapeError, UnknownMethodError)
 from rgbd_envmap.geometry import equirect_pixel_index
 from rgbd_envmap.lights import (METHODS, HemigonState, LightSet, Q2TreeState, irradiance, map_integral,
-                                direct_mask, direct_part, merge_lights, sample_lights, split_direct_indirect)
+                                direct_mask, direct_part, light_grid, merge_lights, sample_lights, split_direct_indirect)
 from rgbd_envmap.lights import cells as cells_mod
 from rgbd_envmap.lights import q2tree as q2
 from rgbd_envmap.lights.hemisphere import hemisphere_to_square, square_to_hemisphere
@@ -544,6 +544,50 @@ def test_direct_part_sh_is_the_projection_of_the_direct_pixels(room):
     only = np.where(mask[..., None], rad, np.float32(0))
     want = project_equirect(only, bands=5)
     np.testing.assert_allclose(shd, want, rtol=0, atol=1e-5 * np.abs(want).max())
+    mask2, _, shd2 = direct_part(rad, 0.5, 5)  # the separable form, at exact directions
+    np.testing.assert_array_equal(mask2, mask)
+    np.testing.assert_allclose(shd2, want, rtol=0, atol=1e-9 * np.abs(want).max())
+
+
+def _exact_basis_table(H, W, bands=5):
+    """The SH basis × solid angle at the pixel centres, directions formed in float64 (the library's
+    equirect_directions are float32)."""
+    from rgbd_envmap import sh
+    from rgbd_envmap.geometry import equirect_solid_angles
+
+    theta = np.pi * (np.arange(H) + 0.5) / H
+    phi = 2 * np.pi * (np.arange(W) + 0.5) / W - np.pi
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    d = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
+    return sh.basis(d, bands) * equirect_solid_angles(H, W).reshape(-1, 1)
+
+
+@pytest.mark.parametrize("bands", [1, 3, 5, 8])
+@pytest.mark.parametrize("tau", [0.05, 0.5, 1.0])
+def test_direct_part_separable_sh_is_the_table_form(bands, tau):
+    """``basis`` = a band count (per-row Legendre × per-column trig factors) against the (H·W, K)
+    table of the same basis at float64 directions: the same mask and threshold, the sums to 1e-10;
+    on odd widths (no folding symmetry) and with a valid mask."""
+    rng = np.random.default_rng(bands)
+    for rad in _maps() + [rng.gamma(0.5, 1.0, (17, 35, 3))]:
+        H, W = rad.shape[:2]
+        table = _exact_basis_table(H, W, bands)
+        for valid in (None, rng.random((H, W)) > 0.3):
+            mask, thr, shd = direct_part(rad, tau, bands, valid=valid)
+            m2, t2, s2 = ref.direct_split(rad, tau, valid, table)
+            np.testing.assert_array_equal(mask, m2)
+            assert thr == t2 and shd.shape == (bands * bands, 3)
+            np.testing.assert_allclose(shd, s2, rtol=0, atol=1e-10 * max(np.abs(s2).max(), 1e-300))
+
+
+def test_direct_part_separable_sh_checks_the_band_count():
+    rad = np.ones((8, 16, 3))
+    with pytest.raises(RangeError, match="basis"):
+        direct_part(rad, 0.5, 0)
+    with pytest.raises(RangeError, match="basis"):
+        direct_part(rad, 0.5, 1000)
+    with pytest.raises(ShapeError, match="basis"):
+        direct_part(rad, 0.5, True)  # a flag is not a band count (nor a table)
 
 
 def test_direct_part_hard_cases():
@@ -582,3 +626,36 @@ def test_split_puts_the_lamp_in_the_direct_part(room):
     bad[0, 0, 0] = np.nan
     with pytest.raises(NonFiniteError):
         split_direct_indirect(bad, 0.5)
+
+
+# --- the pipeline's coarse light grid ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("stride", [1, 3, 4, 7])
+def test_light_grid_is_the_reference(dtype, stride):
+    rng = np.random.default_rng(stride)
+    rad = rng.normal(0.5, 1.0, (26, 51, 3)).astype(dtype)
+    rad[rng.random(rad.shape) < 0.05] = np.nan
+    rad[0, 0] = (-0.0, np.inf, -np.inf)
+    got = light_grid(rad, stride)
+    want = ref.light_grid(rad, stride)
+    assert got.dtype == dtype and got.flags.c_contiguous and got.shape == want.shape
+    np.testing.assert_array_equal(got, want)  # NaN where NaN
+    # the numpy form it replaces in the pipeline, where no value is NaN
+    finite = np.nan_to_num(rad, nan=-1.0)
+    o = stride // 2
+    np.testing.assert_array_equal(light_grid(finite, stride), np.maximum(finite[o::stride, o::stride], 0))
+    # strided input (a view) and an integer-valued map
+    np.testing.assert_array_equal(light_grid(rad[:, ::2], stride), ref.light_grid(rad[:, ::2], stride))
+
+
+def test_light_grid_hard_cases():
+    assert light_grid(np.ones((3, 3, 3), np.float32), 4).shape == (1, 1, 3)  # a stride beyond the map: one pixel
+    assert light_grid(np.ones((1, 1, 3)), 9).shape == (0, 0, 3)  # o = 4 lies outside
+    with pytest.raises(RangeError, match="stride"):
+        light_grid(np.ones((4, 4, 3)), 0)
+    with pytest.raises(ShapeError, match="radiance"):
+        light_grid(np.ones((4, 4)), 2)
+    with pytest.raises(DTypeError, match="radiance"):
+        light_grid(np.ones((4, 4, 3), np.uint8), 2)
