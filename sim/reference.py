@@ -28,7 +28,8 @@ from rgbd_envmap.types import Intrinsics, RigidTransform
 from sim.mitsuba_scene import ExtraMesh, build_scene, trace
 from sim.scene import Scene
 
-__all__ = ["ReferenceFrame", "ReferencePair", "render_reference", "render_reference_pair", "camera_rays"]
+__all__ = ["ReferenceFrame", "ReferencePair", "EmitterQuad", "emitter_quads", "render_reference", "render_reference_pair",
+           "camera_rays"]
 
 
 @dataclass(frozen=True)
@@ -257,6 +258,7 @@ def _gather_change(raycaster, object_rc, mi_scene, t_s, origin, dirs, idx, centr
     radius = float(np.max(np.linalg.norm(verts - centre, axis=1)))
     omega_near = 2.0 * np.pi * (1.0 - np.sqrt(0.75))  # the bounding sphere seen from 2 r
     rng = np.random.default_rng([int(seed), 0x9E3779B9])
+    emitters = emitter_quads(raycaster.scene, t_s)
     for b in range(0, len(idx), _GATHER_BATCH):
         pix = idx[b:b + _GATHER_BATCH]
         sh = raycaster.surface_hits(origin, dirs[pix], t_s)
@@ -283,12 +285,115 @@ def _gather_change(raycaster, object_rc, mi_scene, t_s, origin, dirs, idx, centr
         for mk in np.unique(count[count > 0]):
             g = np.flatnonzero(count == mk)
             _gather_group(raycaster, object_rc, mi_scene, t_s, x[g], n[g], axis[g], cos_max[g], solid[g], albedo[g],
-                          int(mk), rng, int(seed) * 7_919 + b * 64 + int(mk), out, noise, pix[g])
+                          int(mk), rng, int(seed) * 7_919 + b * 64 + int(mk), out, noise, pix[g],
+                          emitters=emitters, centre=centre, radius=radius)
+
+
+@dataclass(frozen=True)
+class EmitterQuad:
+    """An emitting quad of the scene, sampled by area in the gather (index into ``scene.objects``;
+    corner + s·u + t·v, s, t ∈ [0, 1]; unit normal; area; centre and bounding radius)."""
+
+    index: int
+    corner: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    normal: np.ndarray
+    area: float
+    centre: np.ndarray
+    radius: float
+
+
+def emitter_quads(scene: Scene, t_s: float) -> tuple[EmitterQuad, ...]:
+    """The scene's emitting quads visible at ``t_s`` (lamps, windows, screens: every emitter with a
+    quad frame)."""
+    out = []
+    for i, o in enumerate(scene.objects):
+        if not (o.emits and o.quad_frame is not None and o.visible_at(t_s)):
+            continue
+        corner, u, v = (np.asarray(a, np.float64) for a in o.quad_frame)
+        nrm = np.cross(u, v)
+        area = float(np.linalg.norm(nrm))
+        if area <= 0:
+            continue
+        c = corner + 0.5 * (u + v)
+        r = 0.5 * max(float(np.linalg.norm(u + v)), float(np.linalg.norm(u - v)))
+        out.append(EmitterQuad(i, corner, u, v, nrm / area, area, c, r))
+    return tuple(out)
+
+
+def _cone_overlap(x: np.ndarray, c1: np.ndarray, r1: float, c2: np.ndarray, r2: float) -> np.ndarray:
+    """(P,) bool: from points ``x`` (P, 3), the cones around the spheres (c1, r1) and (c2, r2) share a
+    direction (conservatively: the angle between the axes ≤ the sum of the half-angles; a point
+    inside a sphere sees it all round)."""
+    a, b = c1 - x, c2 - x
+    da, db = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+    ha = np.where(da > r1, np.arcsin(np.clip(r1 / np.maximum(da, 1e-12), 0.0, 1.0)), np.pi)
+    hb = np.where(db > r2, np.arcsin(np.clip(r2 / np.maximum(db, 1e-12), 0.0, 1.0)), np.pi)
+    cos_ab = np.einsum("ij,ij->i", a, b) / np.maximum(da * db, 1e-300)
+    return np.arccos(np.clip(cos_ab, -1.0, 1.0)) <= ha + hb + 1e-9
+
+
+def _mis_area_weight(r: np.ndarray, cos_y: np.ndarray, area: float, solid: np.ndarray) -> np.ndarray:
+    """The balance heuristic's weight of the area sample (one cone direction and one area sample per
+    term): p_area / (p_area + p_cone) in solid-angle measure, p_area = r² / (A cos θ_y), p_cone = 1 / Ω."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p_area = r * r / (area * cos_y)
+    p_cone = 1.0 / solid
+    return np.where(np.isfinite(p_area), p_area / (p_area + p_cone), 1.0)
+
+
+def _emitter_blocked(raycaster, object_rc, t_s, org, n, solid, em: EmitterQuad, m, rng) -> np.ndarray:
+    """(P, m, 3) per point and area sample y_j of emitter ``em`` (m jittered Fibonacci points on the
+    quad, a random rotation per point): the radiance the object now hides from the point through y_j,
+    as an estimate of ∫_quad L(y) cos θ_x cos θ_y / r² dA (each sample's term × area / m): L(y) the
+    bake's radiance where the scene ray from the point meets the quad itself (nothing of the scene in
+    between), counted only where the object is hit before it; each term weighted by the balance
+    heuristic against the cone's directions (``solid`` (P,) the points' cone solid angles)."""
+    P = len(org)
+    i = np.arange(m)
+    base = np.stack([(i + 0.5) / m, np.mod(i * 0.6180339887498949, 1.0)], axis=1)  # (m, 2)
+    st = np.mod(base[None] + rng.random((P, 1, 2)), 1.0)  # (P, m, 2)
+    y = em.corner + st[..., :1] * em.u + st[..., 1:] * em.v  # (P, m, 3)
+    d = y - org[:, None]
+    r = np.linalg.norm(d, axis=2)
+    w = d / np.maximum(r, 1e-12)[..., None]
+    cos_x = np.einsum("pmk,pk->pm", w, n)
+    cos_y = np.abs(w @ em.normal)
+    ok = (cos_x > 0) & (r > 1e-6)
+    out = np.zeros((P, m, 3))
+    k = np.flatnonzero(ok.ravel())
+    if not len(k):
+        return out
+    o_rep = np.repeat(org, m, axis=0)[k]
+    w_flat = w.reshape(-1, 3)[k]
+    r_flat = r.ravel()[k]
+    t_o = _distance(object_rc, o_rep, w_flat)
+    blocked = np.isfinite(t_o) & (t_o < r_flat)
+    k, o_rep, w_flat, r_flat = k[blocked], o_rep[blocked], w_flat[blocked], r_flat[blocked]
+    if not len(k):
+        return out
+    hits = raycaster.cast(o_rep, w_flat.astype(np.float32), t_s, normals=False)
+    seen = hits.hit & (hits.object_index == em.index) & (hits.distance_m >= r_flat * (1.0 - 1e-4) - 1e-4)
+    k, rad = k[seen], hits.radiance[seen].astype(np.float64)
+    rk, cyk = r.ravel()[k], cos_y.ravel()[k]
+    g = (cos_x.ravel()[k] * cyk / rk ** 2) * (em.area / m)
+    g *= _mis_area_weight(rk, cyk, em.area, solid[k // m])
+    out.reshape(-1, 3)[k] = rad * g[:, None]
+    return out
 
 
 def _gather_group(raycaster, object_rc, mi_scene, t_s, x, n, axis, cos_max, solid, albedo, m, rng, seed, out, noise,
-                  pix):
-    """:func:`_gather_change` for points that all take ``m`` directions."""
+                  pix, *, emitters: Sequence[EmitterQuad] = (), centre=None, radius: float = 0.0):
+    """:func:`_gather_change` for points that all take ``m`` directions.
+
+    The light the object hides from the scene's emitting quads (``emitters``) is estimated twice and
+    combined by multiple importance sampling (the balance heuristic): by the cone's ``m`` directions
+    and by ``m`` samples on each quad's area (next-event estimation). A small lamp covers a tiny part
+    of the cone, so uniform directions alone found it in a few of their ``m`` only, a heavy-tailed
+    estimate that left black and negative pixels at the object's foot; a large emitter (a wall that
+    fills the cone) is better sampled by the cone, and the weights pick each where it is better.
+    Everything else the object hides, and the light it reflects, comes from the cone alone."""
     d = _cone_directions(axis, cos_max, m, rng)  # (P, m, 3)
     cos_n = np.einsum("pmk,pk->pm", d, n)
     o_rep = np.repeat(x + 1e-4 * n, m, axis=0)
@@ -300,12 +405,25 @@ def _gather_group(raycaster, object_rc, mi_scene, t_s, x, n, axis, cos_max, soli
     if len(k):
         behind = raycaster.cast(o_rep[k], d_flat[k].astype(np.float32), t_s, normals=False)
         front = ~behind.hit | (t_o[k] < behind.distance_m)
-        k, behind_radiance = k[front], behind.radiance[front]
+        k, behind_radiance = k[front], behind.radiance[front].astype(np.float64)
+        hit_index = behind.object_index[front]
+        for em in emitters:  # the cone's share of an emitter's hidden light (balance heuristic)
+            on = np.flatnonzero(hit_index == em.index)
+            if len(on):
+                cos_y = np.abs(d_flat[k[on]] @ em.normal)
+                r = behind.distance_m[front][on].astype(np.float64)
+                behind_radiance[on] *= 1.0 - _mis_area_weight(r, cos_y, em.area, solid[k[on] // m])[:, None]
         if len(k):
             delta[k] = trace(mi_scene, o_rep[k], d_flat[k], seed=seed) - behind_radiance
     # ΔE/π = (1/π) ∫ ΔL cos dω ≈ (Ω / π) · mean(ΔL cos), uniform in the cone.
     w = (delta * np.maximum(cos_n, 0.0).reshape(-1, 1)).reshape(len(x), m, 3)
-    halves = np.stack([w[:, 0::2].mean(axis=1), w[:, 1::2].mean(axis=1)])
-    factor = (solid / np.pi)[:, None] * albedo
-    out[pix] += (factor * halves.mean(axis=0)).astype(np.float32)
-    noise[pix] = (factor * np.abs(halves[0] - halves[1]) / 2.0).astype(np.float32)
+    halves = np.stack([w[:, 0::2].mean(axis=1), w[:, 1::2].mean(axis=1)]) * (solid / np.pi)[None, :, None]
+    for em in emitters:  # minus what the object hides of each emitting quad, in E / π units
+        near = np.flatnonzero(_cone_overlap(x, centre, radius, em.centre, em.radius))
+        if not len(near):
+            continue
+        hidden = _emitter_blocked(raycaster, object_rc, t_s, x[near] + 1e-4 * n[near], n[near], solid[near], em, m, rng)
+        halves[0, near] -= hidden[:, 0::2].sum(axis=1) * (2.0 / np.pi)
+        halves[1, near] -= hidden[:, 1::2].sum(axis=1) * (2.0 / np.pi)
+    out[pix] += (albedo * halves.mean(axis=0)).astype(np.float32)
+    noise[pix] = (albedo * np.abs(halves[0] - halves[1]) / 2.0).astype(np.float32)
