@@ -781,7 +781,8 @@ class Pipeline:
             # "prt": the object keeps its PRT colours (self.colours), which also light the receivers
             fixed = self.colours if rc.object_shading == "prt" else None
             self.colours, self.receiver_ratio = shader.shade(self.lights, self.coeffs_indirect[:n], self._transfer,
-                                                             self._object.albedo, object_colours=fixed)
+                                                             self._object.albedo, object_colours=fixed,
+                                                             object_coeffs=None if fixed is None else self.coeffs[:n])
             self._receiver_faces = shader.active_faces(self.receiver_ratio)
 
     def _colour_step(self, packet: ColourPacket, srgb8: np.ndarray) -> ColourStep:

@@ -8,15 +8,20 @@ On each real surface point x with normal n near the object (a vertex of the
 :class:`~rgbd_envmap.render.geometry.ReceiverMesh` built from the map's depth):
 
     E_without(x) = Σ_i I_i max(0, n·ℓ_i) / r_i²  +  Σ_k L_k Â_l Y_k(n)
-    E_with(x)    = Σ_i I_i max(0, n·ℓ_i) / r_i² V_i(x)  +  Σ_k L_k (Â_l Y_k(n) − B_k(x))  +  F(x) · L_obj
+    E_with(x)    = Σ_i I_i max(0, n·ℓ_i) / r_i² V_i(x)  +  Σ_k L_k (Â_l Y_k(n) − B_k(x))  +  ∫_blocked L_obj(ω) max(0, n·ω) dω
 
 with I_i = power_i · |p_i − origin|² the light's intensity (a distant light, without a position, gives
 power_i max(0, n·d_i)), V_i the visibility of light i through the virtual object (a shadow ray from x
 to the light's position against the object's mesh), B_k(x) = ∫_blocked max(0, n·ω) Y_k(ω) dω the SH
 projection of the directions in which x sees the object, F(x) = ∫_blocked max(0, n·ω) dω their
-cosine-weighted solid angle and L_obj the object's mean outgoing radiance (the light it reflects onto
-x, paper 001's colour bleeding from virtual to real). B and F are estimated once per receiver mesh by
-casting ``samples`` stratified rays per vertex into the cone of the object's bounding sphere.
+cosine-weighted solid angle and L_obj(ω) the object's outgoing radiance where the ray x + tω meets it
+(the light it reflects onto x, paper 001's colour bleeding from virtual to real: the object's side that
+faces x, so a lamp-lit top does not light the table under it). B, F and the last integral's weights
+are estimated once per receiver mesh by casting ``samples`` stratified rays per vertex into the cone
+of the object's bounding sphere: each ray that meets the object adds its weight to the three
+vertices of the triangle it hits, by the hit's barycentric coordinates (``ReceiverOcclusion.bounce``,
+a sparse receivers × object-vertices matrix), so the integral is one sparse product with the
+object's vertex radiance on every relight.
 
 The composite is then camera · E_with / E_without per channel in the reference colour space
 (:func:`rgbd_envmap.render.composite.composite_differential`): with the real surface's albedo
@@ -96,10 +101,31 @@ class ObjectOccluder:
         self.centre = 0.5 * (self.vertices.min(axis=0) + self.vertices.max(axis=0))
         self.radius = float(np.linalg.norm(self.vertices - self.centre, axis=1).max()) if len(v) else 0.0
         self._o3d = o3d
+        self.faces = np.asarray(f, np.int64)
         self._scene = o3d.t.geometry.RaycastingScene()
         if len(f):
             self._scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(v, np.float32)),
                                       o3d.core.Tensor(np.ascontiguousarray(f, np.uint32)))
+
+    def first_hits(self, origins: np.ndarray, vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Where the rays origins + t · vectors, t > 0, first meet the object: (hit (N,) bool,
+        triangle index (N,) int64, barycentric weights (N, 3) float64 of its three vertices, rows
+        summing to 1; zeros where the ray misses)."""
+        n = len(origins)
+        hit = np.zeros(n, bool)
+        tri = np.zeros(n, np.int64)
+        bary = np.zeros((n, 3))
+        for s in range(0, n, _CHUNK):
+            rays = np.concatenate([origins[s:s + _CHUNK], vectors[s:s + _CHUNK]], axis=1).astype(np.float32)
+            ans = self._scene.cast_rays(self._o3d.core.Tensor(rays))
+            h = np.isfinite(ans["t_hit"].numpy())
+            uv = ans["primitive_uvs"].numpy().astype(np.float64)
+            sl = slice(s, s + len(rays))
+            hit[sl] = h
+            tri[sl] = np.where(h, ans["primitive_ids"].numpy().astype(np.int64), 0)
+            # open3d's uv: the hit is (1 − u − v) · v0 + u · v1 + v · v2
+            bary[sl] = np.where(h[:, None], np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], axis=1), 0.0)
+        return hit, tri, bary
 
     def blocked(self, origins: np.ndarray, vectors: np.ndarray, t_far: float = np.inf) -> np.ndarray:
         """(N,) bool: the ray origins + t · vectors, 0 < t < ``t_far``, meets the object (t in units of
@@ -113,27 +139,42 @@ class ObjectOccluder:
 
 
 class ReceiverOcclusion:
-    """What the object hides from each receiver vertex: ``blocked_sh`` (V, n²) float64 B_k and
-    ``blocked_cos`` (V,) float64 F (module docstring)."""
+    """What the object hides from each receiver vertex: ``blocked_sh`` (R, n²) float64 B_k,
+    ``blocked_cos`` (R,) float64 F, and ``bounce`` (R, V) sparse (CSR) float64 the weights of the
+    object's V vertex radiances in ∫_blocked L_obj max(0, n·ω) dω (module docstring; each row sums to
+    F). Without ``bounce`` (None) the object's mean radiance stands for L_obj."""
 
-    def __init__(self, blocked_sh: np.ndarray, blocked_cos: np.ndarray) -> None:
+    def __init__(self, blocked_sh: np.ndarray, blocked_cos: np.ndarray, bounce=None) -> None:
         self.blocked_sh = blocked_sh
         self.blocked_cos = blocked_cos
+        self.bounce = bounce
+
+    def bounced(self, colours: np.ndarray) -> np.ndarray:
+        """(R, 3) float64 the light the object reflects onto each receiver, ∫_blocked L_obj cos dω,
+        for the object's vertex radiance ``colours`` (V, 3)."""
+        c = np.asarray(colours, np.float64)
+        if self.bounce is not None:
+            return np.asarray(self.bounce @ c)
+        l_obj = (np.ones(len(c)) @ c) / max(len(c), 1)  # a product with ones: a column mean is ~10× slower
+        return self.blocked_cos[:, None] * l_obj[None]
 
 
 def receiver_occlusion(receivers: ReceiverMesh, occluder: ObjectOccluder, bands: int, *, samples: int = 32,
                        offset_m: float = 1e-4) -> ReceiverOcclusion:
-    """B_k and F of every receiver vertex by ``samples`` stratified rays in the cone of the object's
-    bounding sphere (the hemisphere around the normal when the vertex is inside the sphere)."""
-    from scipy.sparse import csr_matrix
+    """B_k, F and the bounce weights of every receiver vertex by ``samples`` stratified rays in the
+    cone of the object's bounding sphere (the hemisphere around the normal when the vertex is inside
+    the sphere)."""
+    from scipy.sparse import coo_matrix, csr_matrix
 
     bands = check_number(bands, "bands", low=1, integer=True)
     samples = check_number(samples, "samples", low=1, integer=True)
     V = len(receivers)
+    nv = len(occluder.vertices)
     out_sh = np.zeros((V, bands * bands))
     out_cos = np.zeros(V)
+    rows, cols, vals = [], [], []
     if V == 0 or occluder.radius <= 0:
-        return ReceiverOcclusion(out_sh, out_cos)
+        return ReceiverOcclusion(out_sh, out_cos, csr_matrix((V, nv)))
     p, n = receivers.vertices, receivers.normals
     to_c = occluder.centre - p
     d = np.linalg.norm(to_c, axis=1)
@@ -154,18 +195,25 @@ def receiver_occlusion(receivers: ReceiverMesh, occluder: ObjectOccluder, bands:
         front = cos > 0
         ci, mi = np.nonzero(front)
         org = p[ii][ci] + offset_m * n[ii][ci]
-        hit = occluder.blocked(org, dirs[ci, mi])
-        ci, mi = ci[hit], mi[hit]
+        hit, tri, bary = occluder.first_hits(org, dirs[ci, mi])
+        ci, mi, tri, bary = ci[hit], mi[hit], tri[hit], bary[hit]
         if not len(ci):
             continue
         w = (omega[ci] / samples) * cos[ci, mi]
+        rows.append(np.repeat(ii[ci], 3))
+        cols.append(occluder.faces[tri].ravel())
+        vals.append((w[:, None] * bary).ravel())
         # ci is ascending (np.nonzero's order): each vertex's blocked rays are one run, so the sums
         # per vertex are a CSR matrix (vertex × ray, the weights) times the rays' basis values
         indptr = np.concatenate([[0], np.cumsum(np.bincount(ci, minlength=len(ii)))])
         weights = csr_matrix((w, np.arange(len(w)), indptr), shape=(len(ii), len(w)))
         out_cos[ii] += np.asarray(weights.sum(axis=1)).ravel()
         out_sh[ii] += weights @ sh.basis(dirs[ci, mi], bands)
-    return ReceiverOcclusion(out_sh, out_cos)
+    if rows:  # duplicates (a vertex hit by several rays of one receiver) are summed by the conversion
+        bounce = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(V, nv)).tocsr()
+    else:
+        bounce = csr_matrix((V, nv))
+    return ReceiverOcclusion(out_sh, out_cos, bounce)
 
 
 def _light_rays(lights: LightSet, points: np.ndarray) -> np.ndarray:
@@ -302,6 +350,8 @@ class DifferentialShader:
         # the last light set (a LightSet is frozen: the same object is the same lights) with its
         # direct irradiance at the receivers without / with the object and at the object's vertices
         self._direct: tuple | None = None
+        # (key, bounce weights @ the object's transfer (R, K), the transfer itself: keeps its id valid)
+        self._bounce_t: tuple | None = None
 
     @property
     def cached_lights(self) -> tuple[tuple, ...]:
@@ -324,6 +374,7 @@ class DifferentialShader:
         self._visibility = []
         self._terms = None
         self._direct = None
+        self._bounce_t = None
 
     def _seen_from_object(self, lights: LightSet) -> tuple[list[str], np.ndarray]:
         """Each light's kind ("p" positioned, "d" distant) and unit direction from the object's centre."""
@@ -384,12 +435,18 @@ class DifferentialShader:
         return w0, w0 * rv, (None if wo is None else wo * ov)
 
     def shade(self, lights: LightSet | None, coeffs_indirect: np.ndarray, transfer: np.ndarray,
-              albedo: object, object_colours: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+              albedo: object, object_colours: np.ndarray | None = None,
+              object_coeffs: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(object vertex radiance (V, 3) float32, receiver ratio (R, 3) float32) for the lights (None:
         no direct part) and the indirect SH coefficients (n², 3); ``transfer`` (V, ≥ n²) the object's
         PRT transfer (its first n² columns are used). ``object_colours`` (V, 3): the object's radiance
         as shaded elsewhere (PRT of the whole map): returned as it is and used for the light it
-        reflects onto the receivers; the lights' self-shadow rays are then not cast."""
+        reflects onto the receivers; the lights' self-shadow rays are then not cast.
+        ``object_coeffs`` (m², 3): the coefficients ``object_colours`` were shaded with by PRT
+        (albedo / π · transfer[:, :m²] @ object_coeffs); the light the object reflects onto the
+        receivers is then formed from them through the bounce weights times the transfer (kept per
+        receiver mesh: an (R, m²) product instead of a sparse (R, V) one per call; equal up to the
+        colours' float32 rounding)."""
         from rgbd_envmap.prt import shade as prt_shade
 
         c = np.asarray(coeffs_indirect, np.float64)
@@ -422,14 +479,28 @@ class DifferentialShader:
             return colours, np.ones((0, 3), np.float32)
         e0 = np.maximum(self._t0[:, :nk] @ c, 0.0)
         e1 = np.maximum(self._t1[:, :nk] @ c, 0.0)
-        # the object's mean radiance (a product with ones: a column mean of a (V, 3) array is ~10× slower)
-        l_obj = (np.ones(len(colours)) @ colours.astype(np.float64)) / max(len(colours), 1)
-        e1 += self._occlusion.blocked_cos[:, None] * l_obj[None]
+        # the object's light onto each receiver, from its side that faces it
+        if object_coeffs is not None and object_colours is not None and self._occlusion.bounce is not None:
+            e1 += self._bounced_sh(transfer, np.asarray(object_coeffs, np.float64), a)
+        else:
+            e1 += self._occlusion.bounced(colours)
         if has:
             e0 += d0
             e1 += d1
         ratio = receiver_ratio(e0, e1)
         return colours, ratio
+
+    def _bounced_sh(self, transfer: np.ndarray, coeffs: np.ndarray, albedo: np.ndarray) -> np.ndarray:
+        """(R, 3) the object's PRT light onto the receivers: albedo / π · (bounce @ transfer) @ coeffs,
+        the bracket computed once per receiver mesh and transfer array (an array changed in place
+        is not seen: the pipeline's transfer is fixed per object)."""
+        t = np.asarray(transfer)
+        key = (id(transfer), t.shape)
+        if self._bounce_t is None or self._bounce_t[0] != key:
+            self._bounce_t = (key, np.asarray(self._occlusion.bounce @ t.astype(np.float64)), transfer)
+        bt = self._bounce_t[1]
+        k = min(coeffs.shape[0], bt.shape[1])
+        return (bt[:, :k] @ coeffs[:k]) * (albedo / np.pi)[None]
 
     def active_faces(self, ratio: np.ndarray, eps: float = 1e-3) -> np.ndarray:
         """(F', 3) int32 the receiver triangles with a vertex whose ratio is farther than ``eps`` from 1

@@ -182,6 +182,54 @@ def test_occlusion_of_a_sphere_over_a_plane_is_its_view_factor():
     np.testing.assert_allclose(o.blocked_sh[:, 0], o.blocked_cos * 0.5 / np.sqrt(np.pi), rtol=1e-9)
 
 
+def test_first_hits_give_the_hit_triangle_and_its_barycentric_weights():
+    v, f = icosphere(0.05, [0.0, 0.0, 0.1], subdiv=2)
+    occ = ObjectOccluder(v, f)
+    rng = np.random.default_rng(5)
+    org = rng.normal(scale=0.02, size=(400, 3)) + [0.0, 0.0, -0.5]
+    tgt = v[rng.integers(len(v), size=400)] * 0.9 + 0.1 * np.array([0.0, 0.0, 0.1])  # inside the sphere
+    vec = np.concatenate([tgt - org, [[1.0, 0.0, 0.0]]])  # and one that misses
+    org = np.concatenate([org, [[0.0, 0.0, -0.5]]])
+    hit, tri, bary = occ.first_hits(org, vec)
+    assert hit[:-1].all() and not hit[-1] and not bary[-1].any()
+    np.testing.assert_allclose(bary[hit].sum(axis=1), 1.0, atol=1e-6)
+    assert (bary[hit] >= -1e-6).all()
+    # the barycentric point lies on the ray, and is the nearest of all the triangles' hits
+    p = np.einsum("nk,nkd->nd", bary[hit], v[f[tri[hit]]])
+    d = vec[hit] / np.linalg.norm(vec[hit], axis=1, keepdims=True)
+    off = p - org[hit]
+    np.testing.assert_allclose(np.linalg.norm(np.cross(off, d), axis=1), 0.0, atol=2e-6)
+    assert (np.einsum("nd,nd->n", off, d) > 0).all()
+    np.testing.assert_array_equal(occ.blocked(org, vec), hit)
+
+
+def test_bounce_weights_sum_to_the_view_factor_and_see_the_side_facing_the_receiver():
+    """The object's light onto a receiver comes from its side that faces it: a sphere whose upper
+    half has radiance 10 and lower half 1, over points straight below it (which see only a cap
+    below the equator) gives them F · 1, not F times the mean radiance (5.5); a point far to the
+    side sees part of the upper half. Each weight row sums to F."""
+    r, c = 0.05, np.array([0.0, 0.0, 0.1])
+    v, f = icosphere(r, c)
+    occ = ObjectOccluder(v, f)
+    pts = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.03], [0.0, 0.0, -0.2], [0.4, 0.0, 0.0]])
+    nrm = np.tile([0, 0, 1.0], (len(pts), 1))
+    o = receiver_occlusion(ReceiverMesh(pts, nrm, np.zeros((0, 3), np.int32)), occ, 3, samples=256)
+    assert o.bounce.shape == (len(pts), len(v))
+    np.testing.assert_allclose(np.asarray(o.bounce.sum(axis=1)).ravel(), o.blocked_cos, rtol=1e-12)
+    colours = np.where(v[:, 2:] > c[2], 10.0, 1.0) * np.ones((1, 3))
+    got = o.bounced(colours)
+    np.testing.assert_allclose(got[:3], np.repeat(o.blocked_cos[:3, None], 3, axis=1), rtol=1e-9)
+    assert o.blocked_cos[3] > 0 and 1.05 < got[3, 0] / o.blocked_cos[3] < 5.5
+    # uniform colours: the mean radiance's answer
+    np.testing.assert_allclose(o.bounced(np.full((len(v), 3), 2.0)), 2.0 * o.blocked_cos[:, None] * np.ones((1, 3)),
+                               rtol=1e-9)
+    # an occlusion without weights falls back to the mean radiance
+    from rgbd_envmap.render.differential import ReceiverOcclusion
+
+    mean = ReceiverOcclusion(o.blocked_sh, o.blocked_cos).bounced(colours)
+    np.testing.assert_allclose(mean, o.blocked_cos[:, None] * colours.mean(axis=0)[None], rtol=1e-12)
+
+
 def test_direct_irradiance_equals_the_light_sets_own():
     rng = np.random.default_rng(3)
     n = 7
@@ -251,6 +299,43 @@ def test_shader_darkens_the_shadow_and_leaves_far_points():
     np.testing.assert_allclose(colours[top], 0.5 / np.pi * e_top, rtol=1e-3)
     bottom = np.argmin(v[:, 2])
     np.testing.assert_allclose(colours[bottom], 0.0, atol=1e-9)  # faces away from the light
+
+
+def test_shader_bounce_from_prt_coefficients_equals_the_vertex_form():
+    """With ``object_coeffs`` the receivers' bounce light is (bounce @ transfer) @ coeffs: the same
+    ratio as the sparse product with the PRT colours themselves, to their float32 rounding; a new
+    transfer (another object shading) is not served from the cached product."""
+    from rgbd_envmap import prt
+
+    r, c = 0.04, np.array([0.0, 0.0, 0.05])
+    v, f = icosphere(r, c, 3)
+    nv = (v - c) / r
+    g = np.linspace(-0.3, 0.3, 21)
+    xy = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    pts = np.concatenate([xy, np.zeros((len(xy), 1))], 1)
+    rec = ReceiverMesh(pts, np.tile([0, 0, 1.0], (len(pts), 1)), np.zeros((0, 3), np.int32))
+    rng = np.random.default_rng(2)
+    transfer = prt.unoccluded_transfer(nv, 3).astype(np.float32)
+    coeffs = rng.normal(0, 0.2, (9, 3))
+    coeffs[0] = 3.0
+    albedo = np.array([0.6, 0.5, 0.4])
+    colours = prt.shade(transfer, coeffs, albedo)
+    ind = 0.5 * coeffs
+    a, b = DifferentialShader(v, f, nv, samples=32), DifferentialShader(v, f, nv, samples=32)
+    a.set_receivers(rec, 3)
+    b.set_receivers(rec, 3)
+    _, ra = a.shade(None, ind, transfer, albedo, object_colours=colours, object_coeffs=coeffs)
+    _, rb = b.shade(None, ind, transfer, albedo, object_colours=colours)
+    assert (np.abs(ra - 1) > 1e-3).any()  # the object changes the receivers at all
+    np.testing.assert_allclose(ra, rb, rtol=1e-5, atol=1e-6)
+    # a lit top and a dark bottom: the receivers below see the dark side
+    other = transfer.copy()
+    other[v[:, 2] < c[2]] *= 0.1
+    _, r2 = a.shade(None, ind, other, albedo, object_colours=prt.shade(other, coeffs, albedo), object_coeffs=coeffs)
+    _, r3 = b.shade(None, ind, other, albedo, object_colours=prt.shade(other, coeffs, albedo))
+    np.testing.assert_allclose(r2, r3, rtol=1e-5, atol=1e-6)
+    below = np.argmin(np.linalg.norm(pts, axis=1))
+    assert r2[below].mean() < ra[below].mean()
 
 
 # --- the composite ---------------------------------------------------------------------------------
