@@ -22,7 +22,7 @@ from rgbd_envmap.colour import srgb8_to_linear_lut
 from rgbd_envmap.reference.render_composite import encode_srgb8
 from rgbd_envmap.render.layer import Layer
 
-__all__ = ["RATIO_EPS", "composite_differential"]
+__all__ = ["RATIO_EPS", "composite_differential", "light_weights"]
 
 RATIO_EPS = 1e-3
 
@@ -49,4 +49,35 @@ def composite_differential(frame_srgb: np.ndarray, object_layer: Layer, receiver
     a = object_layer.plane_alpha[plane].astype(np.float64)[:, None]
     grey = m_inv @ np.full(3, float(shadow_grey))
     out[plane] = encode_srgb8((1.0 - a) * lut[out[plane]].astype(np.float64) + a * grey)
+    return out
+
+
+def light_weights(points, normals, positions, directions, origin) -> np.ndarray:
+    """The irradiance per unit power each light gives each point, one pair at a time: (N, n) with,
+    for light j with a finite position p_j (``positions`` (n, 3) or None), I_j max(0, n·Δ) / |Δ|³,
+    Δ = p_j − x, |Δ|² at least 1e-12, I_j = |p_j − origin|² (a point light whose power is its
+    radiant intensity spread as the map saw it from its origin); for a light without one,
+    max(0, n·d_j) (a distant light)."""
+    import math
+
+    pts, nrm = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+    dirs = np.asarray(directions, np.float64)
+    out = np.zeros((len(pts), len(dirs)))
+    for j in range(len(dirs)):
+        p = None if positions is None else np.asarray(positions[j], np.float64)
+        positioned = p is not None and bool(np.isfinite(p).all())
+        if positioned:
+            o = np.asarray(origin, np.float64)
+            intensity = float(np.sum((p - o) ** 2))
+        for i in range(len(pts)):
+            x, m = pts[i], nrm[i]
+            if positioned:
+                d0, d1, d2 = float(p[0] - x[0]), float(p[1] - x[1]), float(p[2] - x[2])
+                c = float(m[0]) * d0 + float(m[1]) * d1 + float(m[2]) * d2
+                if c > 0.0:
+                    r2 = max(d0 * d0 + d1 * d1 + d2 * d2, 1e-12)
+                    out[i, j] = c * (intensity / (r2 * math.sqrt(r2)))
+            else:
+                c = float(m[0]) * float(dirs[j, 0]) + float(m[1]) * float(dirs[j, 1]) + float(m[2]) * float(dirs[j, 2])
+                out[i, j] = c if c > 0.0 else 0.0
     return out

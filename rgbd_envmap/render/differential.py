@@ -49,6 +49,7 @@ from __future__ import annotations
 import numpy as np
 
 from rgbd_envmap import sh
+from rgbd_envmap._kernels.light_weights import light_weights_kernel
 from rgbd_envmap.checks import check_array, check_number
 from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.lights import LightSet
@@ -244,34 +245,22 @@ def direct_irradiance(lights: LightSet, points: object, normals: object, visible
     return w @ lights.power
 
 
-def _light_weights_unshadowed(lights: LightSet, points: np.ndarray, normals: np.ndarray,
-                              fixed: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+def _light_weights_unshadowed(lights: LightSet, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """(N, n) float64: the irradiance each light gives per unit power at ``points`` with ``normals``
     (the weights :func:`direct_irradiance` multiplies by the lights' power): I max(0, n·Δ) / |Δ|³ with
     Δ = p_i − x and I = |p_i − origin|² for a light with a position, max(0, n·d_i) for a distant one.
-    Formed from (N, n) products (n·p_i − n·x, |p_i|² − 2 x·p_i + |x|²), no (N, n, 3) array; ``fixed``:
-    the points' (n·x, |x|²) when the caller keeps them (:func:`_point_terms`)."""
-    pts = np.asarray(points, np.float64)
-    nrm = np.asarray(normals, np.float64)
+    One compiled pass (:mod:`rgbd_envmap._kernels.light_weights`)."""
+    pts = np.ascontiguousarray(points, np.float64)
+    nrm = np.ascontiguousarray(normals, np.float64)
+    w = np.zeros((len(pts), len(lights)))
     if len(lights) == 0 or len(pts) == 0:
-        return np.zeros((len(pts), len(lights)))
+        return w
     has_pos = np.zeros(len(lights), bool) if lights.positions is None else np.isfinite(lights.positions).all(axis=1)
-    w = np.empty((len(pts), len(lights)))
-    if has_pos.any():
-        pos = lights.positions[has_pos]
-        r2o = np.sum((pos - lights.origin) ** 2, axis=1)
-        nx, xx = _point_terms(pts, nrm) if fixed is None else fixed
-        cos = nrm @ pos.T - nx[:, None]
-        r2 = np.maximum(np.sum(pos * pos, axis=1)[None] - 2.0 * (pts @ pos.T) + xx[:, None], 1e-12)
-        w[:, has_pos] = np.maximum(cos, 0.0) * (r2o[None] / (r2 * np.sqrt(r2)))
-    if (~has_pos).any():
-        w[:, ~has_pos] = np.maximum(nrm @ lights.directions[~has_pos].T, 0.0)
+    pos = np.zeros((len(lights), 3)) if lights.positions is None else np.where(has_pos[:, None], lights.positions, 0.0)
+    intensity = np.zeros(len(lights)) if lights.origin is None else np.sum((pos - lights.origin) ** 2, axis=1)
+    light_weights_kernel(pts, nrm, np.ascontiguousarray(pos, np.float64), has_pos,
+                         np.ascontiguousarray(lights.directions, np.float64), intensity, w)
     return w
-
-
-def _point_terms(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(n·x, |x|²) per point, (N,) float64 each (einsum: a sum over an axis of 3 is slow in numpy)."""
-    return np.einsum("pk,pk->p", normals, points), np.einsum("pk,pk->p", points, points)
 
 
 def light_visibility(lights: LightSet, points: np.ndarray, normals: np.ndarray, occluder: ObjectOccluder, *,
@@ -346,7 +335,6 @@ class DifferentialShader:
         # the shadow rays of recent lights: (kind, unit direction from the object's centre,
         # receiver visibility (R,) bool, object visibility (V,) bool or None)
         self._visibility: list[tuple[str, np.ndarray, np.ndarray, np.ndarray | None]] = []
-        self._terms = None  # (n·x, |x|²) of the receivers and of the object's vertices
         # the last light set (a LightSet is frozen: the same object is the same lights) with its
         # direct irradiance at the receivers without / with the object and at the object's vertices
         self._direct: tuple | None = None
@@ -372,7 +360,6 @@ class DifferentialShader:
         self._t0 = t0
         self._t1 = t0 - self._occlusion.blocked_sh
         self._visibility = []
-        self._terms = None
         self._direct = None
         self._bounce_t = None
 
@@ -399,11 +386,8 @@ class DifferentialShader:
         this one (a lamp's power-weighted mean position jitters as the map is updated; 0.5° moves a
         shadow cast from 10 cm above a surface by under 1 mm, an eighth of the receivers' spacing)."""
         p, n = self.receivers.vertices, self.receivers.normals
-        if self._terms is None:
-            self._terms = (_point_terms(p, n), _point_terms(self.occluder.vertices, self.object_normals))
-        w0 = _light_weights_unshadowed(lights, p, n, self._terms[0])
-        wo = _light_weights_unshadowed(lights, self.occluder.vertices, self.object_normals,
-                                       self._terms[1]) if with_object else None
+        w0 = _light_weights_unshadowed(lights, p, n)
+        wo = _light_weights_unshadowed(lights, self.occluder.vertices, self.object_normals) if with_object else None
         kinds, dirs = self._seen_from_object(lights)
         cos_tol = np.cos(np.radians(self.cache_deg))
         keep = []
