@@ -196,10 +196,11 @@ def receiver_occlusion(receivers: ReceiverMesh, occluder: ObjectOccluder, bands:
         front = cos > 0
         ci, mi = np.nonzero(front)
         org = p[ii][ci] + offset_m * n[ii][ci]
-        hit, tri, bary = occluder.first_hits(org, dirs[ci, mi])
-        ci, mi, tri, bary = ci[hit], mi[hit], tri[hit], bary[hit]
+        hit = occluder.blocked(org, dirs[ci, mi])  # the occlusion test first: cheaper than a full cast
+        ci, mi = ci[hit], mi[hit]
         if not len(ci):
             continue
+        _, tri, bary = occluder.first_hits(org[hit], dirs[ci, mi])
         w = (omega[ci] / samples) * cos[ci, mi]
         rows.append(np.repeat(ii[ci], 3))
         cols.append(occluder.faces[tri].ravel())
