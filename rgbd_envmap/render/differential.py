@@ -21,7 +21,8 @@ are estimated once per receiver mesh by casting ``samples`` stratified rays per 
 of the object's bounding sphere: each ray that meets the object adds its weight to the three
 vertices of the triangle it hits, by the hit's barycentric coordinates (``ReceiverOcclusion.bounce``,
 a sparse receivers × object-vertices matrix), so the integral is one sparse product with the
-object's vertex radiance on every relight.
+object's vertex radiance on every relight (or, for PRT colours, that matrix times the object's
+transfer, kept per mesh, times the SH coefficients).
 
 The composite is then camera · E_with / E_without per channel in the reference colour space
 (:func:`rgbd_envmap.render.composite.composite_differential`): with the real surface's albedo
