@@ -1,8 +1,8 @@
 """Kernel of the lights' unshadowed irradiance weights (:mod:`rgbd_envmap.render.differential`),
 called from that module only.
 
-What it computes, one point and light at a time in plain Python: :func:`rgbd_envmap.reference.render_differential.light_weights`;
-the tests compare the two bit for bit (no fastmath: the same operations in the same order). numpy
+What it computes, one point and light at a time in plain Python:
+:func:`rgbd_envmap.reference.render_differential.light_weights`; the tests compare the two bit for bit (no fastmath: the same operations in the same order). numpy
 formed the (N, n) weights from a dozen (N, n) temporaries (the products n·p − n·x and the expanded
 |p − x|²); one pass over the points writes each weight once, from Δ = p − x itself (no cancellation
 in |p|² − 2 x·p + |x|² either).

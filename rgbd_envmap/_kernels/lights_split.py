@@ -8,9 +8,10 @@ instead of n², from tables that stay in cache), in four passes over the map and
 size of it but the luminance:
 
 1. luminance, energy total, smallest value and finiteness (what the input checks need);
-2. a histogram of energy (and of pixel counts, with each pixel's bin kept) over 4096 bins of the luminance's float64 bit pattern between its smallest
-   and largest positive value (the bit pattern of a positive double is monotone in its value, so the
-   bins are ordered like the values, which is all the search needs; no logarithm per pixel);
+2. a histogram of energy (and of pixel counts, with each pixel's bin kept) over 4096 bins of the
+   luminance's float64 bit pattern between its smallest and largest positive value (the bit
+   pattern of a positive double is monotone in its value, so the bins are ordered like the values,
+   which is all the search needs; no logarithm per pixel);
 3. the pixels of the one bin where the energy summed from the top crosses the target, sorted;
 4. the mask, and the SH sums of the direct pixels.
 

@@ -25,5 +25,5 @@ from rgbd_envmap.lights.result import LightSet, irradiance
 from rgbd_envmap.lights.sample import MAX_LIGHTS, METHODS, sample_lights
 from rgbd_envmap.lights.split import DirectIndirect, direct_mask, direct_part, light_grid, split_direct_indirect
 
-__all__ = ["DirectIndirect", "HemigonState", "LightSet", "MAX_LIGHTS", "METHODS", "Q2TreeState", "direct_mask", "direct_part", "light_grid",
-           "irradiance", "map_integral", "merge_lights", "sample_lights", "split_direct_indirect"]
+__all__ = ["DirectIndirect", "HemigonState", "LightSet", "MAX_LIGHTS", "METHODS", "Q2TreeState", "direct_mask", "direct_part",
+           "light_grid", "irradiance", "map_integral", "merge_lights", "sample_lights", "split_direct_indirect"]

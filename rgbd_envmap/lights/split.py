@@ -69,8 +69,9 @@ class DirectIndirect:
 def light_grid(radiance: object, stride: int) -> np.ndarray:
     """The coarse grid a live pipeline splits and samples: every ``stride``-th row and column of an
     equirect map (H, W, 3) float32 or float64, from ``stride // 2`` (a pixel near the middle of
-    each stride × stride block), with negative values set to 0 (a correction matrix can leave tiny negatives) and NaN kept (the split reports
-    it). A new C-contiguous array of the map's dtype, (len(range(s // 2, H, s)), len(range(s // 2, W, s)), 3)."""
+    each stride × stride block), with negative values set to 0 (a correction matrix can leave tiny
+    negatives) and NaN kept (the split reports it). A new C-contiguous array of the map's dtype,
+    (len(range(s // 2, H, s)), len(range(s // 2, W, s)), 3)."""
     rad = check_array(radiance, "radiance", shape=("H", "W", 3), dtype="float")
     s = check_positive_int(stride, "stride")
     H, W = rad.shape[:2]
