@@ -131,6 +131,22 @@ def test_simulate_writes_reference_frames_and_composite_metrics(tmp_path):
     assert "composite_rel_rmse" in (out / "timing.md").read_text()
 
 
+def _sphere_over_floor(scene, texel_m, sphere, centre, intr, eye, *, spp, radius_m):
+    """The reference pair of a black ``sphere`` mesh at ``centre`` over ``scene``'s floor (object 0),
+    seen from ``eye`` looking at the origin: (pair, each pixel's scene point (N, 3), the floor
+    pixels the gather changed (N,) bool)."""
+    from sim.bake import BakeConfig
+
+    caster = SceneRaycaster(scene, bake_config=BakeConfig(texel_m=texel_m), cache_dir=None)
+    obj = ExtraMesh("ball", sphere.vertices + centre, sphere.faces, np.zeros(3))
+    pose = look_at(np.asarray(eye, float), np.zeros(3))
+    pair = render_reference_pair(scene, pose, intr, 0.0, obj, spp=spp, radius_m=radius_m, raycaster=caster)
+    origin, dirs = _rays(pose, intr)
+    hits = caster.cast(origin, dirs, 0.0, normals=False)
+    floor = (hits.object_index == 0) & pair.traced.ravel() & ~pair.object_mask.ravel()
+    return pair, origin + dirs * hits.distance_m[:, None], floor
+
+
 def test_gather_change_matches_the_view_factor_of_a_black_sphere():
     """A floor of albedo ρ under walls of fixed radiance L has radiance ρL; a black sphere (centre c,
     radius r, wholly above the floor) hides from a floor point x the cosine-weighted fraction
@@ -151,19 +167,11 @@ def test_gather_change_matches_the_view_factor_of_a_black_sphere():
         {"name": "floor", "shape": "quad", "corner": [-s, -s, 0], "u": [2 * s, 0, 0], "v": [0, 2 * s, 0],
          "albedo": [rho] * 3},
         *[{**w, "radiance": [radiance] * 3} for w in walls]]})
-    caster = SceneRaycaster(scene, bake_config=__import__("sim.bake", fromlist=["BakeConfig"]).BakeConfig(texel_m=0.5),
-                            cache_dir=None)
     sphere = trimesh.creation.icosphere(subdivisions=5, radius=0.1)
     r_eff = float(np.cbrt(3 * sphere.volume / (4 * np.pi)))  # the inscribed mesh's equal-volume radius
     c = np.array([0.0, 0.0, 0.25])
-    obj = ExtraMesh("ball", sphere.vertices + c, sphere.faces, np.zeros(3))
-    intr = Intrinsics(64, 48, 40.0, 40.0, 31.5, 23.5)
-    pose = look_at(np.array([0.0, -0.9, 0.9]), np.array([0.0, 0.0, 0.0]))
-    pair = render_reference_pair(scene, pose, intr, 0.0, obj, spp=256, radius_m=0.8, raycaster=caster)
-    origin, dirs = _rays(pose, intr)
-    hits = caster.cast(origin, dirs, 0.0, normals=False)
-    floor = (hits.object_index == 0) & pair.traced.ravel() & ~pair.object_mask.ravel()
-    x = origin + dirs * hits.distance_m[:, None]
+    pair, x, floor = _sphere_over_floor(scene, 0.5, sphere, c, Intrinsics(64, 48, 40.0, 40.0, 31.5, 23.5),
+                                        [0.0, -0.9, 0.9], spp=256, radius_m=0.8)
     to_c = c - x
     d = np.linalg.norm(to_c, axis=1)
     expect = -rho * radiance * (to_c[:, 2] / d) * (r_eff / d) ** 2
@@ -192,18 +200,10 @@ def test_gather_change_of_a_small_lamp_matches_brute_force_and_stays_non_negativ
     scene = scene_from_dict({"name": "lamp_room", "virtual_object_position": [0, 0, 0.3], "objects": [
         {"name": "floor", "shape": "quad", "corner": [-3, -3, 0], "u": [6, 0, 0], "v": [0, 6, 0], "albedo": [rho] * 3},
         lamp]})
-    caster = SceneRaycaster(scene, bake_config=__import__("sim.bake", fromlist=["BakeConfig"]).BakeConfig(texel_m=0.25),
-                            cache_dir=None)
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.1)
     c = np.array([0.05, 0.0, 0.25])
-    obj = ExtraMesh("ball", sphere.vertices + c, sphere.faces, np.zeros(3))
-    intr = Intrinsics(48, 36, 40.0, 40.0, 23.5, 17.5)
-    pose = look_at(np.array([0.0, -0.6, 0.9]), np.array([0.0, 0.0, 0.0]))
-    pair = render_reference_pair(scene, pose, intr, 0.0, obj, spp=64, radius_m=0.6, raycaster=caster)
-    origin, dirs = _rays(pose, intr)
-    hits = caster.cast(origin, dirs, 0.0, normals=False)
-    floor = (hits.object_index == 0) & pair.traced.ravel() & ~pair.object_mask.ravel()
-    x = origin + dirs * hits.distance_m[:, None]
+    pair, x, floor = _sphere_over_floor(scene, 0.25, sphere, c, Intrinsics(48, 36, 40.0, 40.0, 23.5, 17.5),
+                                        [0.0, -0.6, 0.9], spp=64, radius_m=0.6)
     g = (np.arange(48) + 0.5) / 48
     ys = np.array([-0.1, -0.1, 2.0]) + g[:, None, None] * np.array([0.2, 0, 0]) + g[None, :, None] * np.array([0, 0.2, 0])
     ys = ys.reshape(-1, 3)
