@@ -14,7 +14,10 @@ Cases: each method × 200 / 1000 / 10 000 lights from scratch; the Q2-Tree fed f
 than the default (8: quads of about one pixel); Hemigon with its filters (``HemigonState``); the
 Q2-Tree with the map's depth (positions); the direct / indirect split on the full map; what the
 pipeline runs per relight: the 500×250 light grid taken from the map (``light_grid``) and its
-direct part with the direct pixels' 5-band SH (``direct_part``, by a basis table and separably).
+direct part with the direct pixels' 5-band SH (``direct_part``, by a basis table and separably);
+virtual area lights (``"val"``, paper 000) on that grid's direct part at τ = 0.2 and 0.5, as the
+pipeline calls them (12 lights, the default, and 48; cold and warm-started from an ``AreaLightState``),
+and 200 of them on the whole grid (with its error).
 
 Error: the relative RMS, over 64 Fibonacci normals, of the luminance of the irradiance the lights
 give against the brute-force clamped-cosine convolution of the map (every pixel), the same for every
@@ -38,7 +41,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from rgbd_envmap.lights import (HemigonState, Q2TreeState, direct_part, irradiance, light_grid, sample_lights,
+from rgbd_envmap.lights import (AreaLightState, HemigonState, Q2TreeState, direct_part, irradiance, light_grid, sample_lights,
                                 split_direct_indirect)
 from rgbd_envmap.reference import lights as ref
 
@@ -94,13 +97,25 @@ def main() -> None:
     cases["direct_part 500×250 SH separable"] = (
         lambda: direct_part(sub, 0.5, 5), None, None)
     cases["light_grid stride 4"] = (lambda: light_grid(rad, 4), None, None)
+    # virtual area lights as the pipeline runs them: on the light grid's direct part, with its depth
+    sub_dep = np.ascontiguousarray(dep[::4, ::4])
+    for tau in (0.2, 0.5):
+        mask = direct_part(sub, tau, 5)[0]
+        for n in (12, 48):
+            cases[f"val n={n} 500×250 direct tau={tau}"] = (
+                lambda m=mask, k=n: sample_lights(sub, k, "val", valid=m, depth_m=sub_dep, origin=org), None, None)
+    val_state, mask_02 = AreaLightState(), direct_part(sub, 0.2, 5)[0]
+    cases["val n=12 500×250 direct tau=0.2 state"] = (
+        lambda: sample_lights(sub, 12, "val", valid=mask_02, depth_m=sub_dep, origin=org, state=val_state), None, None)
+    cases["val n=200 500×250 whole map"] = (
+        lambda: sample_lights(sub, 200, "val", depth_m=sub_dep, origin=org), None, None)
 
     normals = fibonacci_normals(64)
     truth = ref.brute_force_irradiance(rad, normals) @ ref.LUMINANCE
     errors = {}
     for name, (fn, method, n) in cases.items():
         out = fn()
-        if hasattr(out, "directions"):
+        if hasattr(out, "directions") and "direct" not in name:  # a direct part's lights miss the rest
             got = irradiance(out, normals) @ ref.LUMINANCE
             errors[name] = (float(np.sqrt(np.mean((got - truth) ** 2)) / np.sqrt(np.mean(truth ** 2))), len(out))
     for fn, _, _ in cases.values():

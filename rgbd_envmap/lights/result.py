@@ -15,6 +15,7 @@ points (point lights, inverse square law).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -47,6 +48,10 @@ class LightSet:
         origin: (3,) float64 the map's world origin, given with ``positions``.
         cells: (n, 2) int64 the Q2-Tree quad of each light, (level, nested HEALPix index at
             nside = 2^level), else None.
+        points: (n, k, 3) float64 world metres, k points spread over each light's area (virtual
+            area lights, ``"val"``), given with ``positions``; else None.
+        point_power: (n, k, 3) float64 ≥ 0, the power each of those points stands for (Σ over k
+            is ``power``, to rounding), given with ``points``.
     """
 
     directions: np.ndarray
@@ -56,6 +61,8 @@ class LightSet:
     positions: np.ndarray | None = None
     origin: np.ndarray | None = None
     cells: np.ndarray | None = None
+    points: np.ndarray | None = None
+    point_power: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         d = check_array(self.directions, "directions", shape=("n", 3), dtype="float", finite=True)
@@ -90,9 +97,40 @@ class LightSet:
             if n and (c[:, 0].min() < 0 or (c[:, 1] < 0).any() or (c[:, 1] >= 12 * 4 ** c[:, 0].astype(np.int64)).any()):
                 raise InvalidInputError("cells: expected (level ≥ 0, 0 ≤ index < 12·4^level) rows")
             object.__setattr__(self, "cells", _frozen(c, np.int64))
+        if (self.points is None) != (self.point_power is None):
+            raise InvalidInputError("points, point_power: expected both or neither, got only "
+                                    + ("points" if self.point_power is None else "point_power"))
+        if self.points is not None:
+            if self.positions is None:
+                raise InvalidInputError("points: given without positions; a light's area points need its position")
+            q = check_array(self.points, "points", shape=(n, "k", 3), dtype="float", finite=True)
+            pp = check_array(self.point_power, "point_power", shape=q.shape, dtype="float", finite=True)
+            if q.shape[1] < 1:
+                raise InvalidInputError("points: expected at least one point per light, got 0")
+            if pp.size and pp.min() < 0:
+                raise InvalidInputError(f"point_power: expected values ≥ 0, got {pp.min()}")
+            object.__setattr__(self, "points", _frozen(q, np.float64))
+            object.__setattr__(self, "point_power", _frozen(pp, np.float64))
 
     def __len__(self) -> int:
         return int(self.directions.shape[0])
+
+    @cached_property
+    def point_lights(self) -> LightSet:
+        """The lights as point lights, one per area point (``points``) with that point's power, the
+        points of no power left out (the set itself when it has no points). A shadow ray to each
+        point gives an area light's penumbra. Made once per set (the set is frozen)."""
+        if self.points is None:
+            return self
+        q = self.points.reshape(-1, 3)
+        pp = self.point_power.reshape(-1, 3)
+        keep = pp.max(axis=1) > 0
+        q, pp = q[keep], pp[keep]
+        own = np.repeat(self.directions, self.points.shape[1], axis=0)[keep]
+        v = q - self.origin
+        nv = np.linalg.norm(v, axis=1, keepdims=True)
+        d = np.where(nv > 1e-9, v / np.maximum(nv, 1e-300), own)  # a point at the origin: its light's direction
+        return LightSet(d, pp, self.method, positions=q, origin=self.origin)
 
     @property
     def total_power(self) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 from rgbd_envmap.reference.sh_projection import pixel_directions, pixel_solid_angles  # noqa: F401 (used here and by tests)
 
 __all__ = ["pixel_directions", "pixel_solid_angles", "map_integral", "brute_force_irradiance", "luminance_cdf",
-           "cell_sums", "direct_split", "light_grid", "pharr", "q2tree", "room_map", "LUMINANCE"]
+           "cell_sums", "direct_split", "light_grid", "pharr", "q2tree", "room_map", "weighted_kmeans", "LUMINANCE"]
 
 #: Rec. 709 luminance weights.
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
@@ -193,6 +193,55 @@ def light_grid(radiance, stride) -> np.ndarray:
                 x = rad[r, c, k]
                 out[v, u, k] = 0 if x < 0 else x
     return out
+
+
+def weighted_kmeans(points, weights, centres, iterations) -> tuple[np.ndarray, np.ndarray, int]:
+    """Lloyd's k-means with weights, as the virtual area lights run it: (centres (k, 3), labels (N,)
+    int64, iterations done).
+
+    Each iteration assigns every point to its nearest centre (the first of equal ones) and moves
+    each centre to the weighted mean of its points; a centre that got no weight moves, one after
+    the other, to the point of largest weight × squared distance to its nearest centre (the
+    distances of this iteration's assignment, each lowered by the centres already moved). It stops
+    when no point changes its centre, or after ``iterations``; the labels returned are those of the
+    final centres."""
+    P = np.asarray(points, np.float64)
+    w = np.asarray(weights, np.float64)
+    c = np.array(centres, np.float64)
+    k = len(c)
+
+    def nearest(c):
+        e = P[:, None, :] - c[None, :, :]
+        d = (e[..., 0] * e[..., 0] + e[..., 1] * e[..., 1]) + e[..., 2] * e[..., 2]
+        lab = np.argmin(d, axis=1) if k else np.zeros(len(P), np.int64)
+        return lab, d[np.arange(len(P)), lab] if k else np.full(len(P), np.inf)
+
+    labels = np.full(len(P), -1, np.int64)
+    done = 0
+    for _ in range(iterations):
+        new, d2 = nearest(c)
+        if np.array_equal(new, labels):
+            break
+        labels = new
+        done += 1
+        wsum = np.zeros(k)
+        sums = np.zeros((k, 3))
+        for i in range(len(P)):  # in point order, as the kernel adds them
+            j = labels[i]
+            wsum[j] += w[i]
+            sums[j] += w[i] * P[i]
+        for j in range(k):
+            if wsum[j] > 0:
+                c[j] = sums[j] / wsum[j]
+        for j in range(k):
+            if wsum[j] > 0:
+                continue
+            i = int(np.argmax(w * d2))
+            c[j] = P[i]
+            e = P - c[j]
+            d2 = np.minimum(d2, (e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1]) + e[:, 2] * e[:, 2])
+    labels, _ = nearest(c)
+    return c, labels, done
 
 
 def room_map(height: int = 128, width: int = 256, lamp: float = 200.0, seed: int = 0

@@ -11,15 +11,25 @@ from rgbd_envmap._kernels import lights_q2tree
 from rgbd_envmap.errors import (DTypeError, InvalidInputError, NonFiniteError, RangeError, RgbdEnvmapError,
                                 ShapeError, UnknownMethodError)
 from rgbd_envmap.geometry import equirect_pixel_index
-from rgbd_envmap.lights import (METHODS, HemigonState, LightSet, Q2TreeState, irradiance, map_integral,
+from rgbd_envmap._kernels.kmeans import weighted_kmeans_kernel
+from rgbd_envmap.lights import (METHODS, AreaLightState, HemigonState, LightSet, Q2TreeState, irradiance, map_integral,
                                 direct_mask, direct_part, light_grid, merge_lights, sample_lights, split_direct_indirect)
 from rgbd_envmap.lights import cells as cells_mod
 from rgbd_envmap.lights import q2tree as q2
+from rgbd_envmap.lights.areas import seed_centres, split_parts
 from rgbd_envmap.lights.hemisphere import hemisphere_to_square, square_to_hemisphere
 from rgbd_envmap.lights.maps import check_inputs
 from rgbd_envmap.reference import lights as ref
 
 ALL = sorted(METHODS)
+
+
+def lights_of(rad, n, method, **kw):
+    """sample_lights, with a unit-sphere depth for "val" where a test gives none (val clusters the
+    map's points; on a sphere round the origin it clusters directions)."""
+    if method == "val" and "depth_m" not in kw:
+        kw["depth_m"] = np.ones(np.shape(rad)[:2])
+    return sample_lights(rad, n, method, **kw)
 
 
 @pytest.fixture(scope="module")
@@ -48,16 +58,21 @@ def leaves(lights: LightSet) -> dict:
 @pytest.mark.parametrize("method", ALL)
 def test_result_shapes_units_and_frozen(room, method):
     rad, _, _ = room
-    lights = sample_lights(rad, 200, method)
+    lights = lights_of(rad, 200, method)
     n = len(lights)
-    assert n == (201 if method == "q2tree" else 200)
+    assert n == (201 if method == "q2tree" else 200)  # val: every one of its 200 clusters holds pixels here
     assert lights.directions.shape == (n, 3) and lights.directions.dtype == np.float64
     assert lights.power.shape == (n, 3) and lights.power.dtype == np.float64
     np.testing.assert_allclose(np.linalg.norm(lights.directions, axis=1), 1.0, atol=1e-12)
     assert (lights.power >= 0).all()
     assert lights.method == method
-    assert (lights.solid_angle is not None) == (method == "q2tree")
-    assert lights.positions is None and lights.origin is None
+    assert (lights.solid_angle is not None) == (method in ("q2tree", "val"))
+    if method == "val":  # lights on the (unit-sphere) surfaces, each with its area points
+        assert lights.positions.shape == (n, 3) and lights.points.shape == (n, 8, 3)
+        np.testing.assert_allclose(lights.point_power.sum(axis=1), lights.power, rtol=1e-12, atol=1e-300)
+        np.testing.assert_allclose(lights.solid_angle.sum(), 4 * np.pi, rtol=1e-12)
+    else:
+        assert lights.positions is None and lights.origin is None and lights.points is None
     with pytest.raises(ValueError):
         lights.power[0, 0] = 1.0
 
@@ -95,14 +110,14 @@ def test_nan_at_a_valid_pixel_raises_but_not_under_the_mask(room, method):
     rad = room[0].copy()
     rad[10, 20, 1] = np.nan
     with pytest.raises(NonFiniteError, match="radiance"):
-        sample_lights(rad, 50, method)
+        lights_of(rad, 50, method)
     valid = np.ones(rad.shape[:2], bool)
     valid[10, 20] = False
-    lights = sample_lights(rad, 50, method, valid=valid)
+    lights = lights_of(rad, 50, method, valid=valid)
     assert np.isfinite(lights.power).all()
     rad[10, 20, 1] = np.inf
     with pytest.raises(NonFiniteError):
-        sample_lights(rad, 50, method)
+        lights_of(rad, 50, method)
 
 
 @pytest.mark.parametrize("method", ALL)
@@ -110,9 +125,9 @@ def test_negative_radiance_and_all_invalid_raise(room, method):
     rad = room[0].copy()
     rad[3, 4, 2] = -1.0
     with pytest.raises(RangeError, match="≥ 0"):
-        sample_lights(rad, 20, method)
+        lights_of(rad, 20, method)
     with pytest.raises(InvalidInputError, match="valid"):
-        sample_lights(room[0], 20, method, valid=np.zeros(rad.shape[:2], bool))
+        lights_of(room[0], 20, method, valid=np.zeros(rad.shape[:2], bool))
 
 
 def test_input_checks(room):
@@ -145,11 +160,11 @@ def test_input_checks(room):
 @pytest.mark.parametrize("method", ALL)
 def test_float64_and_strided_inputs_give_the_same_lights(room, method):
     rad = room[0]
-    a = sample_lights(rad, 100, method)
+    a = lights_of(rad, 100, method)
     wide = np.zeros((rad.shape[0], rad.shape[1], 4), np.float32)
     wide[..., :3] = rad
-    b = sample_lights(wide[..., :3], 100, method)  # non-contiguous view
-    c = sample_lights(rad.astype(np.float64), 100, method)
+    b = lights_of(wide[..., :3], 100, method)  # non-contiguous view
+    c = lights_of(rad.astype(np.float64), 100, method)
     np.testing.assert_array_equal(a.directions, b.directions)
     np.testing.assert_allclose(a.directions, c.directions, atol=1e-12)
     np.testing.assert_allclose(a.power, c.power, rtol=1e-12)
@@ -181,12 +196,13 @@ def test_pdf_methods_carry_the_luminance_exactly_and_colour_on_average(room, met
 
 
 @pytest.mark.parametrize("method, n, tol", [("pharr", 200, 0.03), ("pharr", 1000, 0.008), ("hemigon", 200, 0.035),
-                                            ("hemigon", 1000, 0.01), ("q2tree", 200, 0.02), ("q2tree", 4000, 0.004)])
+                                            ("hemigon", 1000, 0.01), ("q2tree", 200, 0.02), ("q2tree", 4000, 0.004),
+                                            ("val", 200, 0.02), ("val", 1000, 0.01)])
 def test_irradiance_from_lights_matches_a_brute_force_cosine_convolution(room_big, method, n, tol):
     rad = room_big[0]
     normals = fibonacci_normals(64)
     truth = ref.brute_force_irradiance(rad, normals) @ ref.LUMINANCE
-    got = irradiance(sample_lights(rad, n, method), normals) @ ref.LUMINANCE
+    got = irradiance(lights_of(rad, n, method), normals) @ ref.LUMINANCE
     rms = np.sqrt(np.mean((got - truth) ** 2)) / np.sqrt(np.mean(truth ** 2))
     assert rms < tol
 
@@ -420,11 +436,190 @@ def test_lights_are_placed_by_the_depth_and_light_near_points_like_the_map(room_
     np.testing.assert_allclose(irradiance(lights, nrm[None], org[None]), irradiance(lights, nrm[None]), rtol=1e-10)
 
 
+# --- virtual area lights ("val") -------------------------------------------------------------------
+
+def test_val_power_is_the_map_integral_and_each_light_its_clusters_sum(room):
+    rad, dep, org = room
+    valid = np.ones(rad.shape[:2], bool)
+    valid[20:30, 40:70] = False
+    for v in (None, valid):
+        lights = sample_lights(rad, 40, "val", valid=v, depth_m=dep, origin=org)
+        np.testing.assert_allclose(lights.total_power, ref.map_integral(rad, v), rtol=1e-12, atol=0)
+        np.testing.assert_allclose(lights.point_power.sum(axis=1), lights.power, rtol=1e-12)
+        omega = ref.pixel_solid_angles(*rad.shape[:2])
+        np.testing.assert_allclose(lights.solid_angle.sum(), omega[v].sum() if v is not None else omega.sum(),
+                                   rtol=1e-12)
+        np.testing.assert_allclose(lights.positions - org, lights.directions
+                                   * np.linalg.norm(lights.positions - org, axis=1, keepdims=True), atol=1e-12)
+
+
+def test_val_puts_the_lamp_and_the_window_in_lights_of_their_own(room_big):
+    """On the map's direct part (τ = 0.8: the lamp and the window), every light sits on one of the two
+    emitters, its points on that emitter's surface; together the lamp's lights hold the lamp's energy
+    and the window's the window's. (Energy-weighted k-means gives the bright lamp several lights.)"""
+    rad, dep, org = room_big
+    H, W = rad.shape[:2]
+    y = ref.LUMINANCE
+    p = org + ref.pixel_directions(H, W) * dep[..., None].astype(np.float64)
+    energy = (rad * ref.pixel_solid_angles(H, W)[..., None]) @ y
+    on_lamp = lambda q: (np.abs(q[..., 2] - 2.9) < 1e-3) & (np.hypot(q[..., 0] - 0.4, q[..., 1] + 0.3) < 0.25)  # noqa: E731
+    # The window spans |y| < 0.8, 0.9 < z < 2.1 on the wall x = 2; a light's point is the mean of its
+    # pixels, which at the window's edge take in a little of the bright wall around it.
+    on_window = lambda q: (np.abs(q[..., 0] - 2.0) < 0.1) & (np.abs(q[..., 1]) < 0.85) & (q[..., 2] > 0.85) & (q[..., 2] < 2.15)  # noqa: E731
+    in_window = lambda q: (np.abs(q[..., 0] - 2.0) < 0.1) & (np.abs(q[..., 1]) < 0.8) & (q[..., 2] > 0.9) & (q[..., 2] < 2.1)  # noqa: E731
+    lamp_e = energy[on_lamp(p) & (np.hypot(p[..., 0] - 0.4, p[..., 1] + 0.3) < 0.15)].sum()
+    window_e = energy[in_window(p)].sum()
+    direct = direct_mask(rad, 0.8)[0]
+    lights = sample_lights(rad, 12, "val", valid=direct, depth_m=dep, origin=org)
+    lamp, window = on_lamp(lights.positions), on_window(lights.positions)
+    assert lamp.any() and window.any() and (lamp | window).all() and not (lamp & window).any()
+    assert on_lamp(lights.points[lamp]).all() and on_window(lights.points[window]).all()
+    assert lamp_e <= lights.power[lamp].sum(0) @ y < 1.02 * lamp_e
+    assert 0.9 * window_e < lights.power[window].sum(0) @ y < 1.05 * window_e  # with the wall at its edge
+    for j in np.flatnonzero(lamp | window):  # the parts of a light are of about equal power
+        part = lights.point_power[j] @ y
+        assert part.min() > 0.5 * part.max()
+
+
+def test_val_point_lights_are_the_area_points():
+    rad, dep, org = ref.room_map(32, 64)
+    lights = sample_lights(rad, 6, "val", depth_m=dep, origin=org, points=4)
+    pl = lights.point_lights
+    assert pl is lights.point_lights  # made once
+    assert len(pl) == int((lights.point_power.max(axis=2) > 0).sum()) <= 24 and pl.points is None
+    np.testing.assert_allclose(pl.total_power, lights.total_power, rtol=1e-12)
+    np.testing.assert_allclose(pl.positions, lights.points.reshape(-1, 3)[lights.point_power.reshape(-1, 3).max(1) > 0])
+    np.testing.assert_allclose(np.linalg.norm(pl.directions, axis=1), 1.0, atol=1e-12)
+    # a set without area points is its own point lights
+    q = sample_lights(rad, 12, "q2tree", depth_m=dep, origin=org)
+    assert q.point_lights is q
+    # one point per light: the point lights are the lights
+    one = sample_lights(rad, 6, "val", depth_m=dep, origin=org, points=1)
+    np.testing.assert_allclose(one.point_lights.positions, one.positions, atol=1e-12)
+
+
+def test_val_warm_start_follows_the_map():
+    rad, dep, org = ref.room_map(64, 128)
+    state = AreaLightState()
+    first = sample_lights(rad, 16, "val", depth_m=dep, origin=org, state=state, iterations=200)
+    assert state.frames == 1 and state.centres.shape == (16, 3)
+    # converged: the same map again gives the same lights
+    again = sample_lights(rad, 16, "val", depth_m=dep, origin=org, state=state, iterations=200)
+    np.testing.assert_allclose(again.positions, first.positions, atol=1e-12)
+    # a little noise on the map moves the lights a little, and each stays the same light (same index)
+    rng = np.random.default_rng(1)
+    noisy = rad * (1 + 0.01 * rng.standard_normal(rad.shape)).astype(np.float32)
+    moved = sample_lights(np.maximum(noisy, 0), 16, "val", depth_m=dep, origin=org, state=state, iterations=200)
+    assert np.linalg.norm(moved.positions - first.positions, axis=1).max() < 0.1
+    # another count reseeds; reset forgets
+    assert len(sample_lights(rad, 5, "val", depth_m=dep, origin=org, state=state)) == 5
+    state.reset()
+    assert state.centres is None and state.frames == 0
+
+
+def test_val_errors(room):
+    rad, dep, org = room
+    with pytest.raises(InvalidInputError, match="depth"):
+        sample_lights(rad, 10, "val")
+    with pytest.raises(InvalidInputError, match="state"):
+        sample_lights(rad, 10, "val", depth_m=dep, origin=org, state=Q2TreeState())
+    with pytest.raises(InvalidInputError, match="state"):
+        sample_lights(rad, 10, "q2tree", state=AreaLightState())
+    with pytest.raises(RangeError, match="points"):
+        sample_lights(rad, 10, "val", depth_m=dep, origin=org, points=0)
+    with pytest.raises(DTypeError, match="iterations"):
+        sample_lights(rad, 10, "val", depth_m=dep, origin=org, iterations=1.5)
+    with pytest.raises(InvalidInputError, match="options"):
+        sample_lights(rad, 10, "val", depth_m=dep, origin=org, side=4)
+
+
+def test_lightset_validates_area_points():
+    d, pw, o = np.array([[0.0, 0.0, 1.0]]), np.ones((1, 3)), np.zeros(3)
+    pts = np.array([[[0.0, 0.0, 1.0], [0.1, 0.0, 1.0]]])
+    LightSet(d, pw, "val", positions=d, origin=o, points=pts, point_power=np.full((1, 2, 3), 0.5))
+    with pytest.raises(InvalidInputError, match="both"):
+        LightSet(d, pw, "val", positions=d, origin=o, points=pts)
+    with pytest.raises(InvalidInputError, match="positions"):
+        LightSet(d, pw, "val", points=pts, point_power=np.ones((1, 2, 3)))
+    with pytest.raises(ShapeError):
+        LightSet(d, pw, "val", positions=d, origin=o, points=pts, point_power=np.ones((1, 3, 3)))
+    with pytest.raises(InvalidInputError, match="≥ 0"):
+        LightSet(d, pw, "val", positions=d, origin=o, points=pts, point_power=-np.ones((1, 2, 3)))
+    with pytest.raises(NonFiniteError):
+        LightSet(d, pw, "val", positions=d, origin=o, points=pts * np.nan, point_power=np.ones((1, 2, 3)))
+
+
+def kmeans_cases():
+    rng = np.random.default_rng(7)
+    blobs = np.concatenate([rng.normal(c, 0.1, (40, 3)) for c in ([0, 0, 0], [2, 0, 0], [0, 3, 1])])
+    yield "blobs", blobs, rng.random(len(blobs)) + 0.1, blobs[[0, 1, 2]], 50
+    # more centres than distinct points: the spare ones are reseeded, then stay empty
+    dup = np.repeat(rng.random((3, 3)), 4, axis=0)
+    yield "duplicates", dup, np.ones(12), rng.random((5, 3)), 10
+    # two centres on one spot: the second gets nothing (ties go to the first) and is reseeded
+    yield "tied centres", blobs, np.ones(len(blobs)), np.zeros((3, 3)), 30
+    yield "one point", np.array([[1.0, 2.0, 3.0]]), np.array([2.0]), np.array([[0.0, 0, 0], [5, 5, 5]]), 5
+    yield "k = 1", blobs, rng.random(len(blobs)), blobs[:1] + 1.0, 5
+    yield "one iteration", blobs, rng.random(len(blobs)) + 0.1, blobs[[5, 6, 7, 8]], 1
+    big = rng.normal(0, 1, (3000, 3)) * [1, 2, 0.5]
+    yield "many", big, rng.random(3000) ** 4, big[:25], 20
+
+
+@pytest.mark.parametrize("case", list(kmeans_cases()), ids=lambda c: c[0])
+def test_weighted_kmeans_kernel_is_the_reference(case):
+    _, pts, w, c0, iters = case
+    c_ref, lab_ref, done_ref = ref.weighted_kmeans(pts, w, c0, iters)
+    c = np.array(c0, np.float64)
+    lab = np.empty(len(pts), np.int64)
+    done = weighted_kmeans_kernel(np.ascontiguousarray(pts, np.float64), np.asarray(w, np.float64), c, lab, iters)
+    assert done == done_ref
+    np.testing.assert_array_equal(c, c_ref)
+    np.testing.assert_array_equal(lab, lab_ref)
+
+
+def test_seeded_weighted_kmeans_finds_separated_blobs():
+    rng = np.random.default_rng(3)
+    centres = np.array([[0.0, 0, 0], [3, 0, 0], [0, 3, 0], [0, 0, 3]])
+    pts = np.concatenate([rng.normal(c, 0.05, (100, 3)) for c in centres])
+    w = rng.random(len(pts)) + 0.5
+    seeds = seed_centres(pts, w, 4)  # Lloyd alone would not leave a start of four seeds in one blob
+    assert len({int(np.argmin(np.linalg.norm(centres - x, axis=1))) for x in seeds}) == 4
+    c, lab, done = ref.weighted_kmeans(pts, w, seeds, 100)
+    assert done < 100 and len(np.unique(lab)) == 4
+    for j in range(4):  # each blob one cluster, its centre the blob's weighted mean
+        blob = lab[100 * j:100 * (j + 1)]
+        assert (blob == blob[0]).all()
+        np.testing.assert_allclose(c[blob[0]], w[100 * j:100 * (j + 1)] @ pts[100 * j:100 * (j + 1)]
+                                   / w[100 * j:100 * (j + 1)].sum(), atol=1e-12)
+
+
+
+def test_split_parts_cuts_a_light_into_parts_of_equal_weight():
+    rng = np.random.default_rng(4)
+    # points along a line: the parts are contiguous runs, of equal count for equal weights
+    line = np.stack([rng.permutation(1000) / 1000.0, np.zeros(1000), np.zeros(1000)], 1)
+    parts = split_parts(line, np.ones(1000), 8)
+    assert sorted(len(p) for p in parts) == [125] * 8
+    assert sorted(np.concatenate(parts).tolist()) == list(range(1000))
+    spans = sorted((line[p, 0].min(), line[p, 0].max()) for p in parts)
+    assert all(a[1] < b[0] for a, b in zip(spans, spans[1:]))
+    # uneven weights on a cloud: each cut is within half a point of its target, so a part of m = 8 is
+    # within 1.5 of the heaviest point of its share (three nested cuts)
+    cloud, w = rng.normal(0, 1, (500, 3)), rng.random(500) ** 4
+    for m in (3, 5, 8):
+        weights = np.array([w[p].sum() for p in split_parts(cloud, w, m)])
+        assert np.abs(weights - w.sum() / m).max() <= 1.5 * w.max()
+    # fewer points than parts: one point a part, the rest empty; no weight: cut by count
+    few = split_parts(cloud[:3], w[:3], 8)
+    assert sorted(len(p) for p in few) == [0] * 5 + [1] * 3
+    assert sorted(len(p) for p in split_parts(cloud[:40], np.zeros(40), 4)) == [10] * 4
+
+
 # --- hard cases -----------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("method", ALL)
 def test_an_all_black_map_gives_powerless_lights(method):
-    lights = sample_lights(np.zeros((16, 32, 3), np.float32), 40, method)
+    lights = lights_of(np.zeros((16, 32, 3), np.float32), 40, method)
     assert (lights.power == 0).all()
     np.testing.assert_allclose(np.linalg.norm(lights.directions, axis=1), 1.0)
 
@@ -434,7 +629,7 @@ def test_an_all_black_map_gives_powerless_lights(method):
 def test_a_single_bright_pixel(method, pixel):
     rad = np.zeros((32, 64, 3), np.float32)
     rad[pixel] = (100.0, 50.0, 10.0)
-    lights = sample_lights(rad, 30, method)
+    lights = lights_of(rad, 30, method)
     truth = ref.map_integral(rad)
     if method == "q2tree":
         np.testing.assert_allclose(lights.total_power, truth, rtol=1e-14)
@@ -443,6 +638,12 @@ def test_a_single_bright_pixel(method, pixel):
         d = ref.pixel_directions(32, 64)[pixel]
         lvl, p = lights.cells[top]
         assert healpy.vec2pix(2 ** int(lvl), *d, nest=True) == p
+    elif method == "val":  # one light of all the power, sitting on that pixel's point
+        np.testing.assert_allclose(lights.total_power, truth, rtol=1e-12)
+        assert (lights.power > 0).any(axis=1).sum() == 1
+        top = np.argmax(lights.power[:, 0])
+        np.testing.assert_allclose(lights.positions[top], ref.pixel_directions(32, 64)[pixel], atol=1e-6)
+        np.testing.assert_allclose(lights.point_power[top].sum(axis=0), truth, rtol=1e-12)
     else:
         rows, cols, ok = equirect_pixel_index(lights.directions, 32, 64)
         if method == "pharr":  # every sample inside that pixel, with the pixel's power split evenly
@@ -456,12 +657,16 @@ def test_a_single_bright_pixel(method, pixel):
 @pytest.mark.parametrize("method", ALL)
 def test_one_light_and_more_lights_than_pixels(method):
     rad, _, _ = ref.room_map(8, 16)
-    one = sample_lights(rad, 1, method)
+    one = lights_of(rad, 1, method)
     assert len(one) == (12 if method == "q2tree" else 1)
-    many = sample_lights(rad, 500, method)
+    many = lights_of(rad, 500, method)
     if method == "q2tree":
         assert len(many) == 501
         np.testing.assert_allclose(many.total_power, ref.map_integral(rad), rtol=1e-13)
+    elif method == "val":  # no more lights than points: one per pixel, each that pixel
+        assert len(many) == 128 and (many.power > 0).all()
+        np.testing.assert_allclose(many.total_power, ref.map_integral(rad), rtol=1e-12)
+        np.testing.assert_allclose(np.sort(many.solid_angle), np.sort(ref.pixel_solid_angles(8, 16).ravel()), rtol=1e-12)
     else:
         assert len(many) == 500 and (many.power > 0).all()
 
