@@ -105,15 +105,20 @@ class RenderConfig:
     #: differential: lights asked of the sampler on the map's direct part (the Q2-Tree gives 12 + 3k ≥ n).
     lights: int = 12
     #: differential: the sampler of the direct part, a method of :func:`rgbd_envmap.lights.sample_lights`
-    #: ("q2tree", "pharr" or "hemigon"; the stateful ones keep their state from relight to relight).
-    light_method: str = "q2tree"
+    #: ("val", "q2tree", "pharr" or "hemigon"; the stateful ones keep their state from relight to relight).
+    #: "val", virtual area lights on the emitters' surfaces with soft shadows, measured best
+    #: (docs/design/differential.md).
+    light_method: str = "val"
+    #: differential, light_method "val": points per virtual area light, each with its own shadow ray
+    #: (the light's penumbra).
+    light_points: int = 8
     #: differential: how the object itself is shaded. "prt": PRT of the whole map's SH (paper 003; its
     #: transfer self-shadows softly), the lights only cast its shadows onto the real surfaces; "lights":
     #: the lights with a self-shadow ray per vertex plus PRT of the indirect SH (docs/design/differential.md
     #: compares the two).
     object_shading: str = "prt"
     #: differential: the fraction τ of the map's energy given to the lights (paper 000 §4.2), the rest to SH.
-    tau: float = 0.5
+    tau: float = 0.2
     #: differential: the lights of the last sampling are kept while the direct part's SH coefficients
     #: differ from theirs by at most this fraction (Frobenius norm): a lamp that stays put is not
     #: resampled, nor its shadow terms recomputed, on every depth frame. 0 resamples on every relight.
@@ -123,6 +128,10 @@ class RenderConfig:
     receiver_radius_m: float = 0.4
     receiver_spacing_m: float = 0.008
     geometry_every: int = 10
+    #: differential: the largest albedo a real surface may have: the receivers' irradiance without the
+    #: object is kept at least π × the map's radiance there / this (light the map missed, taken as
+    #: uniform; DifferentialShader.set_receivers). 0 turns the floor off.
+    max_albedo: float = 1.0
     #: differential: rays per receiver vertex into the object's bounding cone (its SH occlusion).
     occlusion_samples: int = 32
 
@@ -133,6 +142,8 @@ class RenderConfig:
         check_method(self.composite, COMPOSITE_MODES, "render.composite")
         check_number(self.lights, "render.lights", low=1, high=10_000, integer=True)
         check_method(self.light_method, LIGHT_METHODS, "render.light_method")
+        check_number(self.light_points, "render.light_points", low=1, high=256, integer=True)
+        check_number(self.max_albedo, "render.max_albedo", low=0.0)
         check_method(self.object_shading, OBJECT_SHADING, "render.object_shading")
         check_number(self.tau, "render.tau", low=0.0, high=1.0)
         check_number(self.lights_tolerance, "render.lights_tolerance", low=0.0, high=1.0)

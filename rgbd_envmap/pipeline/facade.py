@@ -687,7 +687,8 @@ class Pipeline:
     def _split_lighting(self, em: EnvironmentMap) -> None:
         """The map's direct part as lights with positions, the indirect rest as SH (paper 000 §4.2):
         ``self.lights`` and ``self.coeffs_indirect`` = the coefficients minus the direct pixels' own."""
-        from rgbd_envmap.lights import HemigonState, LightSet, Q2TreeState, direct_part, light_grid, sample_lights
+        from rgbd_envmap.lights import (AreaLightState, HemigonState, LightSet, Q2TreeState, direct_part, light_grid,
+                                        sample_lights)
 
         rc = self.config.render
         # On every LIGHT_MAP_STRIDE-th row and column (a 16th of the pixels: the split's histogram and the
@@ -711,16 +712,19 @@ class Pipeline:
         self._lights_sh = sh_direct
         if direct.any():
             if self._light_state is None and rc.light_method != "pharr":
-                self._light_state = Q2TreeState() if rc.light_method == "q2tree" else HemigonState()
+                self._light_state = {"q2tree": Q2TreeState, "hemigon": HemigonState, "val": AreaLightState}[rc.light_method]()
+            options = {"points": rc.light_points} if rc.light_method == "val" else {}
             self.lights = sample_lights(radiance, rc.lights, rc.light_method, valid=direct,
                                         depth_m=np.ascontiguousarray(em.depth_m[sub]), origin=em.origin,
-                                        state=self._light_state)
+                                        state=self._light_state, **options)
             keep = self.lights.power.max(axis=1) > 0
             if not keep.all():
                 L = self.lights
                 self.lights = LightSet(L.directions[keep], L.power[keep], L.method,
+                                       solid_angle=None if L.solid_angle is None else L.solid_angle[keep],
                                        positions=None if L.positions is None else L.positions[keep],
-                                       origin=L.origin)
+                                       origin=L.origin, points=None if L.points is None else L.points[keep],
+                                       point_power=None if L.point_power is None else L.point_power[keep])
 
     def _use_coefficients(self, timer: StageTimer) -> None:
         """Band choice and shading of the object from ``self.coeffs``."""
@@ -756,7 +760,7 @@ class Pipeline:
         E_with / E_without (rgbd_envmap.render.differential); the receiver mesh is rebuilt from the map's
         depth every ``render.geometry_every`` relights."""
         from rgbd_envmap.render.differential import DifferentialShader
-        from rgbd_envmap.render.geometry import merge_receivers, receiver_mesh, support_plane
+        from rgbd_envmap.render.geometry import merge_receivers, receiver_mesh, support_plane, surface_radiance
 
         rc = self.config.render
         base = self.object_base
@@ -774,7 +778,8 @@ class Pipeline:
                 # the plane through the object's base where the map has no surface (2 spacings away)
                 plane = support_plane(base, rc.receiver_radius_m, rc.receiver_spacing_m)
                 mesh = merge_receivers(mesh, plane, 2 * rc.receiver_spacing_m)
-                shader.set_receivers(mesh, self.sh_bands_computed)
+                radiance = surface_radiance(em.radiance, em.valid, em.origin, mesh.vertices) if rc.max_albedo else None
+                shader.set_receivers(mesh, self.sh_bands_computed, radiance=radiance, max_albedo=rc.max_albedo or 1.0)
             self._relights_since_geometry = 0
         self._relights_since_geometry += 1
         with timer.stage("Shade receivers" if rc.object_shading == "prt" else "Shade object (PRT)"):

@@ -11,7 +11,8 @@ On each real surface point x with normal n near the object (a vertex of the
     E_with(x)    = Σ_i I_i max(0, n·ℓ_i) / r_i² V_i(x)  +  Σ_k L_k (Â_l Y_k(n) − B_k(x))  +  ∫_blocked L_obj(ω) max(0, n·ω) dω
 
 with I_i = power_i · |p_i − origin|² the light's intensity (a distant light, without a position, gives
-power_i max(0, n·d_i)), V_i the visibility of light i through the virtual object (a shadow ray from x
+power_i max(0, n·d_i); a virtual area light is the sum of its points, each with its part of the
+power: :attr:`rgbd_envmap.lights.LightSet.point_lights`), V_i the visibility of light i through the virtual object (a shadow ray from x
 to the light's position against the object's mesh), B_k(x) = ∫_blocked max(0, n·ω) Y_k(ω) dω the SH
 projection of the directions in which x sees the object, F(x) = ∫_blocked max(0, n·ω) dω their
 cosine-weighted solid angle and L_obj(ω) the object's outgoing radiance where the ray x + tω meets it
@@ -332,6 +333,7 @@ class DifferentialShader:
         self.cache_deg = check_number(cache_deg, "cache_deg", low=0.0, high=180.0)
         self.receivers = ReceiverMesh.empty()
         self._occlusion: ReceiverOcclusion | None = None
+        self._floor: np.ndarray | None = None
         self._bands = 0
         self._t0 = self._t1 = np.zeros((0, 0))
         # the shadow rays of recent lights: (kind, unit direction from the object's centre,
@@ -349,10 +351,23 @@ class DifferentialShader:
         to 1e-6) per light, "p" for a positioned light and "d" for a distant one."""
         return tuple((k, *np.round(d, 6).tolist()) for k, d, _, _ in self._visibility)
 
-    def set_receivers(self, receivers: ReceiverMesh, bands: int) -> None:
+    def set_receivers(self, receivers: ReceiverMesh, bands: int, radiance: object = None, max_albedo: float = 1.0) -> None:
         """A new receiver mesh (the map's geometry changed): its occlusion is estimated anew, and its
-        SH transfer without (Â_l Y_k(n)) and with the object (minus B_k) kept."""
+        SH transfer without (Â_l Y_k(n)) and with the object (minus B_k) kept.
+
+        ``radiance`` (R, 3): the map's radiance of each receiver vertex (what the camera saw there).
+        With it the receivers' irradiance without the object is kept at least π · radiance /
+        ``max_albedo``: a surface cannot reflect more than it receives, so where the map's lights
+        and SH give less, the map has missed light (parts of the room it did not see). That missing
+        light M is taken as uniform over the hemisphere, of which the object hides F / π, so E_with
+        gains M (1 − F / π). Without the floor a poorly covered map gives a well-observed table a
+        small E_without, and the object's changes, divided by it, are magnified."""
         self.receivers = receivers
+        self._floor = None
+        if radiance is not None:
+            rad = check_array(radiance, "radiance", shape=(len(receivers), 3), dtype="float")
+            max_albedo = check_number(max_albedo, "max_albedo", low=0.0, low_open=True)
+            self._floor = np.pi * np.maximum(np.nan_to_num(np.asarray(rad, np.float64)), 0.0) / max_albedo
         self._bands = check_number(bands, "bands", low=1, integer=True)
         self._occlusion = receiver_occlusion(receivers, self.occluder, bands, samples=self.samples)
         from rgbd_envmap.prt import unoccluded_transfer
@@ -424,7 +439,8 @@ class DifferentialShader:
               albedo: object, object_colours: np.ndarray | None = None,
               object_coeffs: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(object vertex radiance (V, 3) float32, receiver ratio (R, 3) float32) for the lights (None:
-        no direct part) and the indirect SH coefficients (n², 3); ``transfer`` (V, ≥ n²) the object's
+        no direct part; area lights, with ``points``, as a point light per point, so that the shadow
+        rays to a light's points give its penumbra) and the indirect SH coefficients (n², 3); ``transfer`` (V, ≥ n²) the object's
         PRT transfer (its first n² columns are used). ``object_colours`` (V, 3): the object's radiance
         as shaded elsewhere (PRT of the whole map): returned as it is and used for the light it
         reflects onto the receivers; the lights' self-shadow rays are then not cast.
@@ -442,6 +458,8 @@ class DifferentialShader:
         V = len(self.occluder.vertices)
         if object_colours is not None:
             object_colours = check_array(object_colours, "object_colours", shape=(V, 3), dtype="float")
+        if lights is not None:
+            lights = lights.point_lights  # area lights: a shadow ray to each of their points
         has = lights is not None and len(lights) > 0
         with_object = object_colours is None
         if has:
@@ -473,6 +491,10 @@ class DifferentialShader:
         if has:
             e0 += d0
             e1 += d1
+        if self._floor is not None:  # light the map missed (set_receivers)
+            missing = np.maximum(self._floor - e0, 0.0)
+            e0 += missing
+            e1 += missing * np.maximum(1.0 - self._occlusion.blocked_cos / np.pi, 0.0)[:, None]
         ratio = receiver_ratio(e0, e1)
         return colours, ratio
 

@@ -41,9 +41,9 @@ import numpy as np
 
 from rgbd_envmap.checks import check_array, check_number
 from rgbd_envmap.errors import ShapeError
-from rgbd_envmap.geometry import equirect_directions
+from rgbd_envmap.geometry import directions_to_equirect, equirect_directions
 
-__all__ = ["ReceiverMesh", "merge_receivers", "receiver_mesh", "support_plane"]
+__all__ = ["ReceiverMesh", "merge_receivers", "receiver_mesh", "support_plane", "surface_radiance"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -216,3 +216,26 @@ def merge_receivers(first: ReceiverMesh, fallback: ReceiverMesh, exclude_m: floa
     return ReceiverMesh(np.concatenate([first.vertices, fallback.vertices[used]]),
                         np.concatenate([first.normals, fallback.normals[used]]),
                         np.concatenate([first.faces, remap[f].astype(np.int32)]))
+
+
+def surface_radiance(radiance: object, valid: object, origin: object, points: object) -> np.ndarray:
+    """(N, 3) float64 the map's radiance of world ``points`` (N, 3): the map's pixel (nearest centre)
+    in each point's direction from ``origin``; NaN where that pixel is not ``valid`` or the point is
+    the origin itself. The map's depth is not checked: a receiver vertex comes from that pixel's
+    depth, or (the support plane) lies under the object where the map sees the table."""
+    rad = check_array(radiance, "radiance", shape=("H", "W", 3), dtype=("float", "int"))
+    ok = check_array(valid, "valid", shape=rad.shape[:2], dtype=np.bool_)
+    o = check_array(origin, "origin", shape=(3,), dtype=("float", "int"), finite=True).astype(np.float64)
+    p = check_array(points, "points", shape=("N", 3), dtype=("float", "int"), finite=True).astype(np.float64)
+    H, W = rad.shape[:2]
+    out = np.full((len(p), 3), np.nan)
+    if not len(p):
+        return out
+    uv = directions_to_equirect(p - o, H, W)
+    good = np.isfinite(uv).all(axis=1)
+    u = np.mod(np.rint(uv[good, 0]).astype(np.int64), W)
+    v = np.clip(np.rint(uv[good, 1]).astype(np.int64), 0, H - 1)
+    idx = np.flatnonzero(good)
+    seen = ok[v, u]
+    out[idx[seen]] = rad[v[seen], u[seen]]
+    return out

@@ -16,7 +16,7 @@ from rgbd_envmap.reference.render_differential import composite_differential as 
 from rgbd_envmap.render import Layer, composite, composite_differential
 from rgbd_envmap.render.differential import (DifferentialShader, ObjectOccluder, cone_directions, direct_irradiance,
                                              light_visibility, receiver_occlusion, receiver_ratio)
-from rgbd_envmap.render.geometry import ReceiverMesh, merge_receivers, receiver_mesh, support_plane
+from rgbd_envmap.render.geometry import ReceiverMesh, merge_receivers, receiver_mesh, support_plane, surface_radiance
 
 
 def icosphere(radius: float, centre, subdiv: int = 4) -> tuple[np.ndarray, np.ndarray]:
@@ -324,6 +324,77 @@ def test_shader_darkens_the_shadow_and_leaves_far_points():
     np.testing.assert_allclose(colours[top], 0.5 / np.pi * e_top, rtol=1e-3)
     bottom = np.argmin(v[:, 2])
     np.testing.assert_allclose(colours[bottom], 0.0, atol=1e-9)  # faces away from the light
+
+
+def test_albedo_floor_adds_the_light_the_map_missed():
+    """With the map's radiance of the receivers, E_without ≥ π L / max_albedo: where the lights and
+    SH give less, the missing light M is added to E_without and M (1 − F/π) to E_with, so each ratio
+    moves from the unfloored one towards 1 − F/π (a convex combination of the two)."""
+    r, c = 0.04, np.array([0.0, 0.0, 0.05])
+    v, f = icosphere(r, c, 3)
+    shader = DifferentialShader(v, f, (v - c) / r, samples=64)
+    g = np.linspace(-0.3, 0.3, 25)
+    xy = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    mesh = ReceiverMesh(np.concatenate([xy, np.zeros((len(xy), 1))], 1), np.tile([0, 0, 1.0], (len(xy), 1)),
+                        np.zeros((0, 3), np.int32))
+    lights = LightSet(np.array([[0, 0, 1.0]]), np.full((1, 3), 1.0), "t", positions=[[0.0, 0.0, 2.0]],
+                      origin=np.zeros(3))
+    coeffs = np.zeros((9, 3))
+    coeffs[0] = 0.1 * 2 * np.sqrt(np.pi)
+    args = (lights, coeffs, np.zeros((len(v), 9)), np.full(3, 0.5))
+    shader.set_receivers(mesh, 3)
+    plain = shader.shade(*args)[1].astype(np.float64)
+    F = shader._occlusion.blocked_cos
+    # a dark surface (radiance below what it receives × albedo): no change, bit for bit
+    shader.set_receivers(mesh, 3, radiance=np.zeros((len(xy), 3)))
+    np.testing.assert_array_equal(shader.shade(*args)[1], plain)
+    shader.set_receivers(mesh, 3, radiance=np.full((len(xy), 3), np.nan))  # unseen: NaN counts as dark
+    np.testing.assert_array_equal(shader.shade(*args)[1], plain)
+    # far too bright for the light the map has: the ratio is the uniform missing light's, 1 − F/π
+    shader.set_receivers(mesh, 3, radiance=np.full((len(xy), 3), 1e6))
+    np.testing.assert_allclose(shader.shade(*args)[1], np.repeat(1 - F[:, None] / np.pi, 3, 1), atol=1e-5)
+    # in between: between the two, and the same with half the radiance and half the largest albedo
+    shader.set_receivers(mesh, 3, radiance=np.full((len(xy), 3), 1.0))
+    mid = shader.shade(*args)[1].astype(np.float64)
+    lo, hi = np.minimum(plain, 1 - F[:, None] / np.pi), np.maximum(plain, 1 - F[:, None] / np.pi)
+    assert (mid >= lo - 1e-6).all() and (mid <= hi + 1e-6).all()
+    assert (np.abs(mid - plain) > 1e-3).any()
+    shader.set_receivers(mesh, 3, radiance=np.full((len(xy), 3), 0.5), max_albedo=0.5)
+    np.testing.assert_allclose(shader.shade(*args)[1], mid, rtol=1e-6)
+    with pytest.raises(RgbdEnvmapError):
+        shader.set_receivers(mesh, 3, radiance=np.ones((3, 3)))
+    with pytest.raises(RgbdEnvmapError):
+        shader.set_receivers(mesh, 3, radiance=np.ones((len(xy), 3)), max_albedo=0.0)
+
+
+def test_surface_radiance_reads_the_pixel_of_each_points_direction():
+    H, W = 16, 32
+    rad = np.arange(H * W * 3, dtype=np.float32).reshape(H, W, 3)
+    valid = np.ones((H, W), bool)
+    valid[3, 7] = False
+    origin = np.array([0.5, -1.0, 1.2])
+    d = equirect_directions(H, W).astype(np.float64)
+    rng = np.random.default_rng(2)
+    rows, cols = np.divmod(np.arange(H * W), W)
+    pts = origin + d[rows, cols] * rng.uniform(0.1, 5.0, (H * W, 1))
+    got = surface_radiance(rad, valid, origin, pts)
+    want = rad[rows, cols].astype(np.float64)
+    want[~valid[rows, cols]] = np.nan
+    np.testing.assert_array_equal(got, want)
+    # across the seam and at the poles: the nearest pixel centre
+    seam = np.array([[np.cos(np.pi - 1e-9), np.sin(np.pi - 1e-9), 0.0], [np.cos(-np.pi + 1e-9), np.sin(-np.pi + 1e-9), 0.0]])
+    poles = np.array([[0, 0, 1.0], [0, 0, -1.0], [1e-12, 0, 1.0]])
+    out = surface_radiance(rad, valid, origin, origin + np.concatenate([seam, poles]))
+    assert {tuple(x) for x in out[:2]} <= {tuple(rad[7, 0]), tuple(rad[7, W - 1]), tuple(rad[8, 0]), tuple(rad[8, W - 1])}
+    assert np.isin(out[2], rad[0]).all() and np.isin(out[4], rad[0]).all()
+    assert np.isin(out[3], rad[H - 1]).all()
+    # the origin itself, and no points
+    assert np.isnan(surface_radiance(rad, valid, origin, origin[None])).all()
+    assert surface_radiance(rad, valid, origin, np.zeros((0, 3))).shape == (0, 3)
+    with pytest.raises(RgbdEnvmapError):
+        surface_radiance(rad, valid[:-1], origin, pts)
+    with pytest.raises(RgbdEnvmapError):
+        surface_radiance(rad, valid, origin, np.full((1, 3), np.nan))
 
 
 def test_shader_bounce_from_prt_coefficients_equals_the_vertex_form():
