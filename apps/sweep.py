@@ -14,10 +14,11 @@ rendering off (row ``default``):
 Rendering axes replay with rendering on (no video, one composite PNG), against the row
 ``render default`` (the render defaults; shared by both axes):
 
-- ``lights``: the differential composite's light sampler (``render.light_method`` q2tree, pharr,
-  hemigon) × light count (``render.lights`` 12, 48);
+- ``lights``: the differential composite's light sampler (``render.light_method`` val, q2tree,
+  pharr, hemigon) × light count (``render.lights`` 12, 48);
 - ``composite``: the paper-003 composite; the differential one with the object shaded by its lights
-  (``render.object_shading=lights``) instead of PRT; ``render.tau`` 0.3 and 0.7.
+  (``render.object_shading=lights``) instead of PRT; ``render.tau`` 0.2, 0.5 and 0.8 (the
+  default's left out).
 
 A rendering point is scored two ways. Against the run's reference frames (``reference/<timestamp>.npz``
 of a simulated run, :mod:`apps.reference_frames`) when there are any: the point's composite at each
@@ -64,7 +65,8 @@ RENDER_AXES = ("lights", "composite")
 TRANSLATION_OFFSET_M = (0.10, 0.0, 0.0)
 #: normals at which the lights' irradiance is compared with the map's (Fibonacci sphere).
 IRRADIANCE_NORMALS = 256
-LIGHT_METHODS = ("q2tree", "pharr", "hemigon")
+LIGHT_METHODS = ("val", "q2tree", "pharr", "hemigon")
+TAUS = (0.2, 0.5, 0.8)
 LIGHT_COUNTS = (12, 48)
 
 
@@ -124,7 +126,7 @@ def grid(axes: list[str] | None = None) -> list[SweepPoint]:
             pts.append(SweepPoint("composite", f"composite object {shading}",
                                   ("render.composite=differential", f"render.object_shading={shading}"), render=True))
             pts += [SweepPoint("composite", f"composite tau {t:g}", ("render.composite=differential", f"render.tau={t}"),
-                               render=True) for t in (0.3, 0.7) if not (differential and t == rc.tau)]
+                               render=True) for t in TAUS if not (differential and t == rc.tau)]
     return pts
 
 

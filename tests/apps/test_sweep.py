@@ -37,14 +37,14 @@ def test_lights_axis_is_every_sampler_times_both_counts_with_rendering_on():
     assert [p.axis for p in pts[:2]] == ["default", "render_default"]
     assert not pts[0].render and pts[1].render and pts[1].overrides == ()
     rc = PipelineConfig().render
-    assert (rc.composite, rc.light_method, rc.lights) == ("differential", "q2tree", 12)
+    assert (rc.composite, rc.light_method, rc.lights) == ("differential", "val", 12)
     combos = {(rc.light_method, rc.lights)}
     for p in pts[2:]:
         assert p.axis == "lights" and p.render
         cfg = apply_overrides(PipelineConfig(), list(p.overrides)).render
         assert cfg.composite == "differential" and cfg.object_shading == rc.object_shading and cfg.tau == rc.tau
         combos.add((cfg.light_method, cfg.lights))
-    assert len(pts) == 2 + 5 and combos == {(m, n) for m in ("q2tree", "pharr", "hemigon") for n in (12, 48)}
+    assert len(pts) == 2 + 7 and combos == {(m, n) for m in ("val", "q2tree", "pharr", "hemigon") for n in (12, 48)}
     assert len({p.name for p in pts}) == len(pts)
 
 
@@ -52,7 +52,7 @@ def test_composite_axis_changes_one_render_setting_each():
     pts = [p for p in grid(["composite"]) if p.axis == "composite"]
     assert all(p.render for p in pts)
     assert [_render_changes(p) for p in pts] == [{"composite": "paper003"}, {"object_shading": "lights"},
-                                                 {"tau": 0.3}, {"tau": 0.7}]
+                                                 {"tau": 0.5}, {"tau": 0.8}]
 
 
 def test_capture_axes_replay_without_rendering_and_the_render_default_is_shared():
