@@ -10,10 +10,14 @@ pixels are clustered by weighted k-means on those positions, each pixel weighted
   the origin to it (the mean of the pixels' directions, when that point is the origin itself);
 - ``solid_angle`` = Σ Ω of its pixels: the light's extent as seen from the origin;
 - ``points`` (n, k, 3) and ``point_power`` (n, k, 3): the cluster cut into k parts of about equal
-  energy, each part's energy-weighted mean position and its power. The parts are made by halving:
-  a part that is to hold m points is cut across its widest direction (the principal axis of its
-  energy-weighted positions) where ⌈m/2⌉ / m of its energy lies on one side. A renderer that gives
-  each part its own shadow ray gets the light's penumbra (:meth:`LightSet.point_lights`).
+  energy, each part's energy-weighted mean position and its power. The parts are made by halving
+  (a k-d tree): a part that is to hold m points is cut across its widest world axis (the first of
+  x, y, z whose energy-weighted spread is at least 0.8 of the largest) where ⌈m/2⌉ / m of its energy
+  lies on one side. A renderer that gives each part its own shadow ray gets the light's penumbra
+  (:meth:`LightSet.point_lights`). World axes rather than the principal axis: a round lamp's spread
+  is nearly isotropic, and its principal axis, and with it every part, would turn with the noise of
+  its pixels from frame to frame; the parts of a lamp that holds still stay put, so their shadow
+  rays are reused.
 
 A window and a ceiling lamp a metre apart in the room fall into different lights even when they
 are close on the sphere, and each light sits on its emitter, where a direction sampler's light
@@ -80,7 +84,7 @@ def seed_centres(points: np.ndarray, weights: np.ndarray, k: int) -> np.ndarray:
 
 def split_parts(points: np.ndarray, weights: np.ndarray, m: int) -> list[np.ndarray]:
     """Index arrays of ``m`` parts of ``points`` (N, 3) of about equal weight: recursive cuts across
-    the principal axis of the weighted positions (module docstring). Parts may be empty (fewer
+    the widest world axis of the weighted positions (module docstring). Parts may be empty (fewer
     points than parts, or one point holding most of the weight)."""
     todo = [(np.arange(len(points)), m)]
     out = []
@@ -95,10 +99,12 @@ def split_parts(points: np.ndarray, weights: np.ndarray, m: int) -> list[np.ndar
         ww = w if tw > 0 else np.ones(len(idx))
         tw = float(ww.sum())
         mu = (ww @ q) / tw
-        e = q - mu
-        cov = (e * ww[:, None]).T @ e
-        axis = np.linalg.eigh(cov)[1][:, -1]
-        order = np.argsort(e @ axis, kind="stable")
+        var = ww @ (q - mu) ** 2
+        # the first world axis (x, y, z) with at least 0.8 of the largest spread: a round lamp's
+        # parts do not turn with the noise of its pixels from one frame to the next, as a principal
+        # axis of a nearly isotropic spread would (their shadow rays are then reused)
+        axis = int(np.flatnonzero(var >= 0.8 * var.max())[0])
+        order = np.argsort(q[:, axis], kind="stable")
         cum = np.cumsum(ww[order])
         a = (parts + 1) // 2
         target = tw * a / parts

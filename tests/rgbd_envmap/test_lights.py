@@ -405,6 +405,11 @@ def test_pdf_merge_interpolates_by_index(room):
         merge_lights([a, sample_lights(maps[0], 100, "hemigon")])
     with pytest.raises(RangeError):
         merge_lights([a, b], weights=[-1, 1])
+    # virtual area lights' clusters do not correspond across cameras: no merge, said so
+    rad, dep, org = ref.room_map(32, 64)
+    val = sample_lights(rad, 6, "val", depth_m=dep, origin=org)
+    with pytest.raises(InvalidInputError, match="'val' has no merge"):
+        merge_lights([val, val])
 
 
 # --- positions ------------------------------------------------------------------------------------
