@@ -81,3 +81,33 @@ def light_weights(points, normals, positions, directions, origin) -> np.ndarray:
                 c = float(m[0]) * float(dirs[j, 0]) + float(m[1]) * float(dirs[j, 1]) + float(m[2]) * float(dirs[j, 2])
                 out[i, j] = c if c > 0.0 else 0.0
     return out
+
+
+def shadow_ray_candidates(origins, positions, has_pos, directions, centre, radius, cull) -> tuple:
+    """The shadow rays :func:`rgbd_envmap.render.differential.light_visibility` casts, one (point,
+    light) pair at a time: (rows, cols, vectors) in point-major order. The ray of point i and light j
+    runs from ``origins[i]`` by v = ``positions[j]`` − origins[i] (``has_pos[j]``) or 1 km along
+    ``directions[j]``; with ``cull`` it is kept only if the segment passes within ``radius`` of
+    ``centre``: t = clip(w·v / max(|v|², 1e-300), 0, 1) with w = centre − origins[i], and
+    |w − t v|² ≤ radius²."""
+    org, pos, dirs = (np.asarray(a, np.float64) for a in (origins, positions, directions))
+    c = np.asarray(centre, np.float64)
+    rows, cols, vecs = [], [], []
+    for i in range(len(org)):
+        x = org[i]
+        w0, w1, w2 = float(c[0] - x[0]), float(c[1] - x[1]), float(c[2] - x[2])
+        for j in range(len(has_pos)):
+            if has_pos[j]:
+                v0, v1, v2 = float(pos[j, 0] - x[0]), float(pos[j, 1] - x[1]), float(pos[j, 2] - x[2])
+            else:
+                v0, v1, v2 = float(dirs[j, 0] * 1e3), float(dirs[j, 1] * 1e3), float(dirs[j, 2] * 1e3)
+            if cull:
+                t = (w0 * v0 + w1 * v1 + w2 * v2) / max(v0 * v0 + v1 * v1 + v2 * v2, 1e-300)
+                t = min(max(t, 0.0), 1.0)
+                g0, g1, g2 = w0 - t * v0, w1 - t * v1, w2 - t * v2
+                if not (g0 * g0 + g1 * g1 + g2 * g2 <= radius * radius):
+                    continue
+            rows.append(i)
+            cols.append(j)
+            vecs.append((v0, v1, v2))
+    return (np.array(rows, np.int64), np.array(cols, np.int64), np.array(vecs, np.float64).reshape(-1, 3))

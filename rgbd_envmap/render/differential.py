@@ -52,6 +52,7 @@ import numpy as np
 
 from rgbd_envmap import sh
 from rgbd_envmap._kernels.light_weights import light_weights_kernel
+from rgbd_envmap._kernels.shadow_rays import shadow_ray_candidates_kernel
 from rgbd_envmap.checks import check_array, check_number
 from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.lights import LightSet
@@ -220,18 +221,6 @@ def receiver_occlusion(receivers: ReceiverMesh, occluder: ObjectOccluder, bands:
     return ReceiverOcclusion(out_sh, out_cos, bounce)
 
 
-def _light_rays(lights: LightSet, points: np.ndarray) -> np.ndarray:
-    """(N, n, 3) per (point, light): the vector from the point to the light (1 km along a distant
-    light's direction), the shadow ray's segment."""
-    has_pos = np.zeros(len(lights), bool) if lights.positions is None else np.isfinite(lights.positions).all(axis=1)
-    vec = np.empty((len(points), len(lights), 3))
-    if has_pos.any():
-        vec[:, has_pos] = lights.positions[has_pos][None] - points[:, None]
-    if (~has_pos).any():
-        vec[:, ~has_pos] = lights.directions[~has_pos][None] * 1e3  # "at infinity": 1 km away
-    return vec
-
-
 def direct_irradiance(lights: LightSet, points: object, normals: object, visible: np.ndarray | None = None) -> np.ndarray:
     """(N, 3) float64 irradiance of ``lights`` at world ``points`` (N, 3) with unit ``normals`` (N, 3):
     point lights where a light has a position (intensity power · |p − origin|², inverse square law),
@@ -276,20 +265,19 @@ def light_visibility(lights: LightSet, points: np.ndarray, normals: np.ndarray, 
     vis = np.ones((len(pts), len(lights)), bool)
     if len(pts) == 0 or len(lights) == 0 or occluder.radius <= 0:
         return vis
-    vec = _light_rays(lights, pts)
-    org = pts + offset_m * nrm
-    for i in range(len(lights)):
-        v = vec[:, i]
-        if cull:
-            # distance from the sphere's centre to the segment org → org + v
-            w = occluder.centre - org
-            t = np.clip(np.sum(w * v, axis=1) / np.maximum(np.sum(v * v, axis=1), 1e-300), 0.0, 1.0)
-            near = np.sum((w - t[:, None] * v) ** 2, axis=1) <= occluder.radius ** 2
-            sel = np.flatnonzero(near)
-        else:
-            sel = np.arange(len(pts))
-        if len(sel):
-            vis[sel, i] = ~occluder.blocked(org[sel], v[sel], 1.0)
+    org = np.ascontiguousarray(pts + offset_m * nrm)
+    has_pos = np.zeros(len(lights), bool) if lights.positions is None else np.isfinite(lights.positions).all(axis=1)
+    pos = np.zeros((len(lights), 3)) if lights.positions is None else np.where(has_pos[:, None], lights.positions, 0.0)
+    size = len(pts) * len(lights)
+    rows, cols, vec = np.empty(size, np.int64), np.empty(size, np.int64), np.empty((size, 3))
+    # the rays that pass the object's bounding sphere, in one compiled pass (_kernels/shadow_rays.py)
+    count = shadow_ray_candidates_kernel(org, np.ascontiguousarray(pos, np.float64), has_pos,
+                                         np.ascontiguousarray(lights.directions, np.float64),
+                                         np.asarray(occluder.centre, np.float64), float(occluder.radius), bool(cull),
+                                         rows, cols, vec)
+    if count:  # every (point, light) ray in one batch
+        rows, cols = rows[:count], cols[:count]
+        vis[rows, cols] = ~occluder.blocked(org[rows], vec[:count], 1.0)
     return vis
 
 
@@ -339,6 +327,9 @@ class DifferentialShader:
         # the shadow rays of recent lights: (kind, unit direction from the object's centre,
         # receiver visibility (R,) bool, object visibility (V,) bool or None)
         self._visibility: list[tuple[str, np.ndarray, np.ndarray, np.ndarray | None]] = []
+        # the last call's unshadowed weight columns by (has a position, its position or direction
+        # bytes, origin bytes): (receiver column (R,), object column (V,) or None)
+        self._columns: dict = {}
         # the last light set (a LightSet is frozen: the same object is the same lights) with its
         # direct irradiance at the receivers without / with the object and at the object's vertices
         self._direct: tuple | None = None
@@ -377,6 +368,7 @@ class DifferentialShader:
         self._t0 = t0
         self._t1 = t0 - self._occlusion.blocked_sh
         self._visibility = []
+        self._columns = {}
         self._direct = None
         self._bounce_t = None
 
@@ -398,42 +390,80 @@ class DifferentialShader:
         """(R, n) unshadowed and (R, n) shadowed receiver weights, (V, n) shadowed object weights (None
         without ``with_object``: its self-shadow rays are neither cast nor kept).
 
-        The cosine and distance terms are exact for every light on every call; the shadow rays are
-        reused from a light of the last call seen from the object's centre within ``cache_deg`` of
-        this one (a lamp's power-weighted mean position jitters as the map is updated; 0.5° moves a
-        shadow cast from 10 cm above a surface by under 1 mm, an eighth of the receivers' spacing)."""
+        The cosine and distance terms are exact for every light on every call (a light of the last
+        call at exactly the same place keeps its columns: a virtual area light whose pixels did not
+        change has the same points); the shadow rays are reused from a light of the last call seen
+        from the object's centre within ``cache_deg`` of this one (a lamp's power-weighted mean
+        position jitters as the map is updated; 0.5° moves a shadow cast from 10 cm above a surface
+        by under 1 mm, an eighth of the receivers' spacing)."""
         p, n = self.receivers.vertices, self.receivers.normals
-        w0 = _light_weights_unshadowed(lights, p, n)
-        wo = _light_weights_unshadowed(lights, self.occluder.vertices, self.object_normals) if with_object else None
+        w0, wo = self._unshadowed_columns(lights, with_object)
         kinds, dirs = self._seen_from_object(lights)
         cos_tol = np.cos(np.radians(self.cache_deg))
-        keep = []
-        rv = np.ones((len(p), len(lights)), bool)
-        ov = np.ones((len(self.occluder.vertices), len(lights)), bool) if with_object else None
+        # each light's kept entry: the one of its kind (with object rays if they are needed) seen
+        # within cache_deg, the nearest, the last of equals
+        old = self._visibility
+        match = np.full(len(lights), -1)
+        if old and len(lights):
+            c = dirs @ np.array([e[1] for e in old]).T
+            usable = np.array([[e[0] == k and (e[3] is not None or not with_object) for e in old] for k in kinds])
+            c = np.where(usable, c, -np.inf)
+            last = c.shape[1] - 1 - np.argmax(c[:, ::-1], axis=1)
+            ok = c[np.arange(len(lights)), last] >= cos_tol
+            match[ok] = last[ok]
+        miss = np.flatnonzero(match < 0)
+        if len(miss):  # the shadow rays of every light without a kept entry, in one batch
+            fresh = LightSet(lights.directions[miss], np.ones((len(miss), 3)), lights.method,
+                             positions=None if lights.positions is None else lights.positions[miss],
+                             origin=lights.origin)
+            r = light_visibility(fresh, p, n, self.occluder)
+            o = light_visibility(fresh, self.occluder.vertices, self.object_normals, self.occluder,
+                                 cull=False) if with_object else None
+        entries = [None] * len(lights)
+        for j, i in enumerate(miss):
+            entries[i] = (kinds[i], dirs[i], r[:, j], None if o is None else o[:, j])
+        keep, kept = [], set()
         for i in range(len(lights)):
-            hit = None
-            best = cos_tol
-            for entry in self._visibility:
-                kind, d, _, o = entry
-                if kind == kinds[i] and (o is not None or not with_object):
-                    c = float(d @ dirs[i])
-                    if c >= best:
-                        hit, best = entry, c
-            if hit is None:
-                one = LightSet(lights.directions[i:i + 1], np.ones((1, 3)), lights.method,
-                               positions=None if lights.positions is None else lights.positions[i:i + 1],
-                               origin=lights.origin)
-                r = light_visibility(one, p, n, self.occluder)[:, 0]
-                o = light_visibility(one, self.occluder.vertices, self.object_normals, self.occluder,
-                                     cull=False)[:, 0] if with_object else None
-                hit = (kinds[i], dirs[i], r, o)
-            if all(hit is not e for e in keep):
-                keep.append(hit)
-            rv[:, i] = hit[2]
-            if with_object:
-                ov[:, i] = hit[3]
+            if entries[i] is None:
+                entries[i] = old[match[i]]
+            if id(entries[i]) not in kept:
+                kept.add(id(entries[i]))
+                keep.append(entries[i])
+        rv = np.stack([e[2] for e in entries], axis=1) if entries else np.ones((len(p), 0), bool)
+        ov = None
+        if with_object:
+            ov = np.stack([e[3] for e in entries], axis=1) if entries else np.ones((len(self.occluder.vertices), 0), bool)
         self._visibility = keep
         return w0, w0 * rv, (None if wo is None else wo * ov)
+
+    def _unshadowed_columns(self, lights: LightSet, with_object: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """(R, n) receiver and (V, n) object weights (None without ``with_object``) of
+        :func:`_light_weights_unshadowed`, each light's columns taken from the last call where a light
+        had bit for bit the same position (or direction, for a distant one) and origin."""
+        has_pos = np.zeros(len(lights), bool) if lights.positions is None else np.isfinite(lights.positions).all(axis=1)
+        origin = b"" if lights.origin is None else np.asarray(lights.origin, np.float64).tobytes()
+        keys = [(bool(h), (lights.positions[i] if h else lights.directions[i]).astype(np.float64).tobytes(), origin)
+                for i, h in enumerate(has_pos)]
+        old = self._columns
+        miss = [i for i, k in enumerate(keys) if k not in old or (with_object and old[k][1] is None)]
+        w0 = np.empty((len(self.receivers), len(lights)))
+        wo = np.empty((len(self.occluder.vertices), len(lights))) if with_object else None
+        if miss:
+            sub = LightSet(lights.directions[miss], np.ones((len(miss), 3)), lights.method,
+                           positions=None if lights.positions is None else lights.positions[miss], origin=lights.origin)
+            w0[:, miss] = _light_weights_unshadowed(sub, self.receivers.vertices, self.receivers.normals)
+            if with_object:
+                wo[:, miss] = _light_weights_unshadowed(sub, self.occluder.vertices, self.object_normals)
+        fresh = set(miss)
+        columns = {}
+        for i, k in enumerate(keys):
+            if i not in fresh:
+                w0[:, i] = old[k][0]
+                if with_object:
+                    wo[:, i] = old[k][1]
+            columns[k] = (w0[:, i], None if wo is None else wo[:, i])
+        self._columns = columns
+        return w0, wo
 
     def shade(self, lights: LightSet | None, coeffs_indirect: np.ndarray, transfer: np.ndarray,
               albedo: object, object_colours: np.ndarray | None = None,

@@ -165,6 +165,50 @@ def test_shadow_of_a_sphere_from_a_point_light_matches_the_closed_form():
     np.testing.assert_array_equal(vis, light_visibility(lights, pts, nrm, occ, cull=False)[:, 0])
 
 
+
+def test_visibility_of_many_lights_is_that_of_each_alone():
+    """One batch of shadow rays for every light gives each light's own answer (positioned lights on
+    both sides of the object, a distant one, one below the receivers)."""
+    r, c = 0.05, np.array([0.0, 0.0, 0.08])
+    v, f = icosphere(r, c)
+    occ = ObjectOccluder(v, f)
+    g = np.linspace(-0.3, 0.3, 41)
+    pts = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    pts = np.concatenate([pts, np.zeros((len(pts), 1))], 1)
+    nrm = np.tile([0, 0, 1.0], (len(pts), 1))
+    pos = np.array([[0.1, 0.05, 1.0], [-0.3, 0.2, 0.5], [0.0, 0.0, 0.3], [np.nan, np.nan, np.nan], [0.0, 0.1, -1.0]])
+    dirs = np.array([[0.1, 0.05, 1.0], [-0.3, 0.2, 0.5], [0, 0, 1.0], [0.2, -0.1, 1.0], [0, 0.1, -1.0]])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    lights = LightSet(dirs, np.ones((5, 3)), "test", positions=pos, origin=np.zeros(3))
+    for cull in (True, False):
+        vis = light_visibility(lights, pts, nrm, occ, cull=cull)
+        for i in range(5):
+            one = LightSet(dirs[i:i + 1], np.ones((1, 3)), "test", positions=pos[i:i + 1], origin=np.zeros(3))
+            np.testing.assert_array_equal(vis[:, i], light_visibility(one, pts, nrm, occ, cull=cull)[:, 0])
+        assert (~vis[:, :4]).any(axis=0).all() and vis[:, 4].all()  # light below the receivers: the object is not between
+
+
+def test_shadow_ray_kernel_is_its_reference_bit_for_bit():
+    from rgbd_envmap._kernels.shadow_rays import shadow_ray_candidates_kernel
+    from rgbd_envmap.reference.render_differential import shadow_ray_candidates
+
+    rng = np.random.default_rng(5)
+    org = rng.uniform(-0.4, 0.4, (300, 3)) * [1, 1, 0.1]
+    pos = np.concatenate([rng.uniform(-2, 2, (6, 3)) + [0, 0, 2], [[0, 0, 0.08]], [[0, 0, 0]]])  # one at the centre
+    org[0] = pos[-1]  # a zero-length segment
+    has = np.array([True] * 7 + [False])
+    dirs = rng.normal(size=(8, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    for cull in (True, False):
+        size = len(org) * len(has)
+        rows, cols, vec = np.empty(size, np.int64), np.empty(size, np.int64), np.empty((size, 3))
+        k = shadow_ray_candidates_kernel(org, pos, has, dirs, np.array([0, 0, 0.08]), 0.05, cull, rows, cols, vec)
+        r, c, v = shadow_ray_candidates(org, pos, has, dirs, [0, 0, 0.08], 0.05, cull)
+        assert k == len(r) and (0 < k < size if cull else k == size)
+        np.testing.assert_array_equal(rows[:k], r)
+        np.testing.assert_array_equal(cols[:k], c)
+        np.testing.assert_array_equal(vec[:k], v)
+
 def test_occlusion_of_a_sphere_over_a_plane_is_its_view_factor():
     r, c = 0.05, np.array([0.0, 0.0, 0.1])
     v, f = icosphere(r, c)
@@ -521,17 +565,30 @@ def test_shader_called_again_with_the_same_lights_reuses_their_terms_exactly():
     c1, c2 = np.zeros((9, 3)), np.zeros((9, 3))
     c1[0], c2[0] = 0.3, 0.5
     c2[2] = 0.1
+    def fresh_shade(light_set, obj):
+        fresh = DifferentialShader(v, f, nv, samples=16)
+        fresh.set_receivers(rec, 3)
+        return fresh.shade(light_set, c2, transfer, np.full(3, 0.5), object_colours=obj)
+
     for obj in (None, np.full((len(v), 3), 0.2, np.float32)):
         shader = DifferentialShader(v, f, nv, samples=16)
         shader.set_receivers(rec, 3)
         shader.shade(lights, c1, transfer, np.full(3, 0.5), object_colours=obj)
         got = shader.shade(lights, c2, transfer, np.full(3, 0.5), object_colours=obj)
-        fresh = DifferentialShader(v, f, nv, samples=16)
-        fresh.set_receivers(rec, 3)
-        want = fresh.shade(lights, c2, transfer, np.full(3, 0.5), object_colours=obj)
+        want = fresh_shade(lights, obj)
         np.testing.assert_array_equal(got[0], want[0])
         np.testing.assert_array_equal(got[1], want[1])
         # another light set, equal or not, is computed anew
         moved = LightSet(lights.directions, 2 * lights.power, "t", positions=p, origin=np.zeros(3))
         twice = shader.shade(moved, c2, transfer, np.full(3, 0.5), object_colours=obj)
         assert not np.array_equal(twice[1], got[1])
+        # a new set with one light where it was and one moved: the kept light's weight columns are
+        # reused, and the result is a fresh shader's
+        q = p.copy()
+        q[1] += [0.3, 0.0, 0.0]
+        shifted = LightSet(q / np.linalg.norm(q, axis=1, keepdims=True), lights.power, "t", positions=q, origin=np.zeros(3))
+        again = shader.shade(shifted, c2, transfer, np.full(3, 0.5), object_colours=obj)
+        want = fresh_shade(shifted, obj)
+        np.testing.assert_array_equal(again[0], want[0])
+        np.testing.assert_array_equal(again[1], want[1])
+        assert len(shader._columns) == 2 and not np.array_equal(again[1], twice[1])
