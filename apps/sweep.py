@@ -17,7 +17,7 @@ Rendering axes replay with rendering on (no video, one composite PNG), against t
 - ``lights``: the differential composite's light sampler (``render.light_method`` val, q2tree,
   pharr, hemigon) × light count (``render.lights`` 12, 48);
 - ``composite``: the paper-003 composite; the differential one with the object shaded by its lights
-  (``render.object_shading=lights``) instead of PRT; ``render.tau`` 0.2, 0.5 and 0.8 (the
+  (``render.object_shading=lights``) instead of PRT; ``render.tau`` 0.1, 0.2, 0.5 and 0.8 (the
   default's left out).
 
 A rendering point is scored two ways. Against the run's reference frames (``reference/<timestamp>.npz``
@@ -66,7 +66,7 @@ TRANSLATION_OFFSET_M = (0.10, 0.0, 0.0)
 #: normals at which the lights' irradiance is compared with the map's (Fibonacci sphere).
 IRRADIANCE_NORMALS = 256
 LIGHT_METHODS = ("val", "q2tree", "pharr", "hemigon")
-TAUS = (0.2, 0.5, 0.8)
+TAUS = (0.1, 0.2, 0.5, 0.8)
 LIGHT_COUNTS = (12, 48)
 
 

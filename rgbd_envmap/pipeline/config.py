@@ -111,14 +111,14 @@ class RenderConfig:
     light_method: str = "val"
     #: differential, light_method "val": points per virtual area light, each with its own shadow ray
     #: (the light's penumbra).
-    light_points: int = 8
+    light_points: int = 4
     #: differential: how the object itself is shaded. "prt": PRT of the whole map's SH (paper 003; its
     #: transfer self-shadows softly), the lights only cast its shadows onto the real surfaces; "lights":
     #: the lights with a self-shadow ray per vertex plus PRT of the indirect SH (docs/design/differential.md
     #: compares the two).
     object_shading: str = "prt"
     #: differential: the fraction τ of the map's energy given to the lights (paper 000 §4.2), the rest to SH.
-    tau: float = 0.2
+    tau: float = 0.1
     #: differential: the lights of the last sampling are kept while the direct part's SH coefficients
     #: differ from theirs by at most this fraction (Frobenius norm): a lamp that stays put is not
     #: resampled, nor its shadow terms recomputed, on every depth frame. 0 resamples on every relight.
