@@ -5,7 +5,8 @@
 
 One simulated session of the default scene (the lit office: the box goes at 6 s, the ceiling lamp
 dims to 40 % at 8 s) runs through the pipeline; after every depth frame each method
-(``pharr``, ``hemigon`` with its state, ``q2tree`` with its state) samples ``--counts`` lights from
+(``pharr``, ``hemigon`` with its state, ``q2tree`` with its state, ``val`` with its warm-started
+cluster centres) samples ``--counts`` lights from
 two maps at the object position:
 
 - the **true** map at that frame's time (rendered by the simulator; it changes only at the scene's
@@ -44,7 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from apps.process import configure_process  # noqa: E402
 
-METHODS = ("pharr", "hemigon", "q2tree")
+METHODS = ("pharr", "hemigon", "q2tree", "val")
 UP = np.array([0.0, 0.0, 1.0])
 
 
@@ -102,7 +103,7 @@ def main() -> int:
 
     import dataclasses
 
-    from rgbd_envmap.lights import HemigonState, Q2TreeState, irradiance, sample_lights
+    from rgbd_envmap.lights import AreaLightState, HemigonState, Q2TreeState, irradiance, sample_lights
     from rgbd_envmap.pipeline import DepthStep, Pipeline, PipelineConfig
     from sim.colour_camera import ColourCameraConfig
     from sim.device import TangoDeviceConfig
@@ -134,7 +135,8 @@ def main() -> int:
     normals = _normals()
     series = {(src, m, n): {"t": [], "e_up": [], "flicker_dir": [], "flicker_irr": [], "irr_err": [], "ms": []}
               for src in ("true", "captured") for m in METHODS for n in counts}
-    states = {k: (HemigonState() if k[1] == "hemigon" else Q2TreeState() if k[1] == "q2tree" else None) for k in series}
+    kinds = {"hemigon": HemigonState, "q2tree": Q2TreeState, "val": AreaLightState}
+    states = {k: kinds[k[1]]() if k[1] in kinds else None for k in series}
     previous = {}
     t0 = time.perf_counter()
     with Pipeline(config, sim.calibration, origin) as pipe:
