@@ -14,7 +14,10 @@ a relight:
 - ``shade_receivers``: the receivers' ratio E_with / E_without for the current lights, shadow rays
   reused ("Shade receivers"); ``shade_receivers_cold``: the same with every shadow ray cast anew (a
   relight right after a receiver rebuild);
-- ``shade_object_lights``: ``render.object_shading = "lights"`` (the object's self-shadow rays too).
+- ``shade_object_lights``: ``render.object_shading = "lights"`` (the object's self-shadow rays too);
+- ``light_irradiance``: the lights' irradiance at the receivers without and with shadows in the
+  fused compiled pass, beside ``light_weights_and_products``: the same from the (R, n) weights and
+  two matrix products (the form it replaced), for the current point lights (trees that have them).
 
 ``--tree PATH`` imports ``rgbd_envmap`` from another checkout (e.g. ``git worktree add /tmp/old REV``)
 so that two versions can be timed alternately, in turns, by running the script once per tree per
@@ -89,6 +92,20 @@ def main(argv: list[str] | None = None) -> int:
         "shade_receivers": ((lambda: shade(pipe.colours)) if prt_mode else shade, None),
         "shade_object_lights": (lambda: shade(None), None),
     }
+    from rgbd_envmap.render import differential as diff
+
+    if hasattr(diff, "_light_irradiance"):
+        pl = getattr(pipe.lights, "point_lights", pipe.lights)
+        vis = np.ones((len(receivers), len(pl)), bool)
+        vis[::7] = False  # some shadowed pairs
+
+        def weights_and_products():
+            w = diff._light_weights_unshadowed(pl, receivers.vertices, receivers.normals)
+            return w @ pl.power, (w * vis) @ pl.power
+
+        cases["light_irradiance"] = (lambda: diff._light_irradiance(pl, receivers.vertices, receivers.normals, vis),
+                                     None)
+        cases["light_weights_and_products"] = (weights_and_products, None)
     shader.set_receivers(receivers, bands)
     out = {"tree": str(root), "receivers": len(receivers), "n_lights": len(pipe.lights)}
     for name, (fn, _) in cases.items():

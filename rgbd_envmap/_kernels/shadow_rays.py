@@ -16,7 +16,7 @@ import numba
 __all__ = ["shadow_ray_candidates_kernel"]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def shadow_ray_candidates_kernel(origins, positions, has_pos, directions, centre, radius, cull,
                                  rows, cols, vectors):  # pragma: no cover - compiled
     """The shadow rays to cast, written to ``rows``, ``cols`` (N·n,) int64 and ``vectors`` (N·n, 3)

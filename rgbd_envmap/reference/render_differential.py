@@ -111,3 +111,18 @@ def shadow_ray_candidates(origins, positions, has_pos, directions, centre, radiu
             cols.append(j)
             vecs.append((v0, v1, v2))
     return (np.array(rows, np.int64), np.array(cols, np.int64), np.array(vecs, np.float64).reshape(-1, 3))
+
+
+def light_irradiance(points, normals, positions, directions, origin, power, visible) -> tuple[np.ndarray, np.ndarray]:
+    """(without shadows, with them): (N, 3) each, Σ_j w_ij power_j and Σ_j (w_ij v_ij) power_j with
+    w from :func:`light_weights` and v_ij = ``visible[i, j]`` as 1.0 / 0.0, the lights added one
+    after the other in their order."""
+    w = light_weights(points, normals, positions, directions, origin)
+    p = np.asarray(power, np.float64)
+    v = np.asarray(visible, bool).astype(np.float64)
+    out_all = np.zeros((len(w), 3))
+    out_visible = np.zeros((len(w), 3))
+    for j in range(p.shape[0]):
+        out_all = out_all + w[:, j:j + 1] * p[j]
+        out_visible = out_visible + (w[:, j] * v[:, j])[:, None] * p[j]
+    return out_all, out_visible

@@ -51,7 +51,7 @@ from __future__ import annotations
 import numpy as np
 
 from rgbd_envmap import sh
-from rgbd_envmap._kernels.light_weights import light_weights_kernel
+from rgbd_envmap._kernels.light_weights import light_irradiance_kernel, light_weights_kernel
 from rgbd_envmap._kernels.shadow_rays import shadow_ray_candidates_kernel
 from rgbd_envmap.checks import check_array, check_number
 from rgbd_envmap.errors import InvalidInputError
@@ -237,6 +237,32 @@ def direct_irradiance(lights: LightSet, points: object, normals: object, visible
     return w @ lights.power
 
 
+def _light_terms(lights: LightSet) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The kernels' view of ``lights``: (has a position (n,) bool, positions (n, 3) with 0 where
+    none, directions (n, 3), intensity I = |p − origin|² (n,), 0 without an origin)."""
+    has_pos = np.zeros(len(lights), bool) if lights.positions is None else np.isfinite(lights.positions).all(axis=1)
+    pos = np.zeros((len(lights), 3)) if lights.positions is None else np.where(has_pos[:, None], lights.positions, 0.0)
+    intensity = np.zeros(len(lights)) if lights.origin is None else np.sum((pos - lights.origin) ** 2, axis=1)
+    return has_pos, np.ascontiguousarray(pos, np.float64), np.ascontiguousarray(lights.directions, np.float64), intensity
+
+
+def _light_irradiance(lights: LightSet, points: np.ndarray, normals: np.ndarray,
+                      visible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) float64 each: the lights' irradiance at ``points`` without and with their shadows
+    (``visible`` (N, n) bool), Σ_j w_ij power_j and Σ_j w_ij v_ij power_j with the weights of
+    :func:`_light_weights_unshadowed`, in one compiled pass that forms no (N, n) weights
+    (:func:`rgbd_envmap._kernels.light_weights.light_irradiance_kernel`)."""
+    pts = np.asarray(points, np.float64)
+    out_all, out_visible = np.zeros((3, len(pts))), np.zeros((3, len(pts)))
+    if len(lights) and len(pts):
+        has_pos, pos, dirs, intensity = _light_terms(lights)
+        # one row per coordinate (the kernel's inner loop then reads consecutive values)
+        light_irradiance_kernel(np.ascontiguousarray(pts.T), np.ascontiguousarray(np.asarray(normals, np.float64).T),
+                                pos, has_pos, dirs, intensity, np.ascontiguousarray(lights.power, np.float64),
+                                np.ascontiguousarray(np.asarray(visible, np.bool_).T), out_all, out_visible)
+    return np.ascontiguousarray(out_all.T), np.ascontiguousarray(out_visible.T)
+
+
 def _light_weights_unshadowed(lights: LightSet, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """(N, n) float64: the irradiance each light gives per unit power at ``points`` with ``normals``
     (the weights :func:`direct_irradiance` multiplies by the lights' power): I max(0, n·Δ) / |Δ|³ with
@@ -247,11 +273,8 @@ def _light_weights_unshadowed(lights: LightSet, points: np.ndarray, normals: np.
     w = np.zeros((len(pts), len(lights)))
     if len(lights) == 0 or len(pts) == 0:
         return w
-    has_pos = np.zeros(len(lights), bool) if lights.positions is None else np.isfinite(lights.positions).all(axis=1)
-    pos = np.zeros((len(lights), 3)) if lights.positions is None else np.where(has_pos[:, None], lights.positions, 0.0)
-    intensity = np.zeros(len(lights)) if lights.origin is None else np.sum((pos - lights.origin) ** 2, axis=1)
-    light_weights_kernel(pts, nrm, np.ascontiguousarray(pos, np.float64), has_pos,
-                         np.ascontiguousarray(lights.directions, np.float64), intensity, w)
+    has_pos, pos, dirs, intensity = _light_terms(lights)
+    light_weights_kernel(pts, nrm, pos, has_pos, dirs, intensity, w)
     return w
 
 
@@ -327,9 +350,6 @@ class DifferentialShader:
         # the shadow rays of recent lights: (kind, unit direction from the object's centre,
         # receiver visibility (R,) bool, object visibility (V,) bool or None)
         self._visibility: list[tuple[str, np.ndarray, np.ndarray, np.ndarray | None]] = []
-        # the last call's unshadowed weight columns by (has a position, its position or direction
-        # bytes, origin bytes): (receiver column (R,), object column (V,) or None)
-        self._columns: dict = {}
         # the last light set (a LightSet is frozen: the same object is the same lights) with its
         # direct irradiance at the receivers without / with the object and at the object's vertices
         self._direct: tuple | None = None
@@ -368,7 +388,6 @@ class DifferentialShader:
         self._t0 = t0
         self._t1 = t0 - self._occlusion.blocked_sh
         self._visibility = []
-        self._columns = {}
         self._direct = None
         self._bounce_t = None
 
@@ -386,18 +405,16 @@ class DifferentialShader:
             kinds.append("d")
         return kinds, dirs
 
-    def _light_weights(self, lights: LightSet, with_object: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """(R, n) unshadowed and (R, n) shadowed receiver weights, (V, n) shadowed object weights (None
-        without ``with_object``: its self-shadow rays are neither cast nor kept).
+    def _shadows(self, lights: LightSet, with_object: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """(R, n) receiver and (V, n) object visibility of each light (None without ``with_object``:
+        the object's self-shadow rays are neither cast nor kept).
 
-        The cosine and distance terms are exact for every light on every call (a light of the last
-        call at exactly the same place keeps its columns: a virtual area light whose pixels did not
-        change has the same points); the shadow rays are reused from a light of the last call seen
-        from the object's centre within ``cache_deg`` of this one (a lamp's power-weighted mean
-        position jitters as the map is updated; 0.5° moves a shadow cast from 10 cm above a surface
-        by under 1 mm, an eighth of the receivers' spacing)."""
+        The shadow rays are reused from a light of the last call seen from the object's centre
+        within ``cache_deg`` of this one (a lamp's power-weighted mean position jitters as the map is
+        updated; 0.5° moves a shadow cast from 10 cm above a surface by under 1 mm, an eighth of the
+        receivers' spacing); the cosine and distance terms (:func:`_light_irradiance`) are exact for
+        every light on every call."""
         p, n = self.receivers.vertices, self.receivers.normals
-        w0, wo = self._unshadowed_columns(lights, with_object)
         kinds, dirs = self._seen_from_object(lights)
         cos_tol = np.cos(np.radians(self.cache_deg))
         # each light's kept entry: the one of its kind (with object rays if they are needed) seen
@@ -429,41 +446,13 @@ class DifferentialShader:
             if id(entries[i]) not in kept:
                 kept.add(id(entries[i]))
                 keep.append(entries[i])
-        rv = np.stack([e[2] for e in entries], axis=1) if entries else np.ones((len(p), 0), bool)
+        # one row per light, returned transposed ((R, n) views): the irradiance kernel reads them by light
+        rv = (np.stack([e[2] for e in entries]) if entries else np.ones((0, len(p)), bool)).T
         ov = None
         if with_object:
-            ov = np.stack([e[3] for e in entries], axis=1) if entries else np.ones((len(self.occluder.vertices), 0), bool)
+            ov = (np.stack([e[3] for e in entries]) if entries else np.ones((0, len(self.occluder.vertices)), bool)).T
         self._visibility = keep
-        return w0, w0 * rv, (None if wo is None else wo * ov)
-
-    def _unshadowed_columns(self, lights: LightSet, with_object: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        """(R, n) receiver and (V, n) object weights (None without ``with_object``) of
-        :func:`_light_weights_unshadowed`, each light's columns taken from the last call where a light
-        had bit for bit the same position (or direction, for a distant one) and origin."""
-        has_pos = np.zeros(len(lights), bool) if lights.positions is None else np.isfinite(lights.positions).all(axis=1)
-        origin = b"" if lights.origin is None else np.asarray(lights.origin, np.float64).tobytes()
-        keys = [(bool(h), (lights.positions[i] if h else lights.directions[i]).astype(np.float64).tobytes(), origin)
-                for i, h in enumerate(has_pos)]
-        old = self._columns
-        miss = [i for i, k in enumerate(keys) if k not in old or (with_object and old[k][1] is None)]
-        w0 = np.empty((len(self.receivers), len(lights)))
-        wo = np.empty((len(self.occluder.vertices), len(lights))) if with_object else None
-        if miss:
-            sub = LightSet(lights.directions[miss], np.ones((len(miss), 3)), lights.method,
-                           positions=None if lights.positions is None else lights.positions[miss], origin=lights.origin)
-            w0[:, miss] = _light_weights_unshadowed(sub, self.receivers.vertices, self.receivers.normals)
-            if with_object:
-                wo[:, miss] = _light_weights_unshadowed(sub, self.occluder.vertices, self.object_normals)
-        fresh = set(miss)
-        columns = {}
-        for i, k in enumerate(keys):
-            if i not in fresh:
-                w0[:, i] = old[k][0]
-                if with_object:
-                    wo[:, i] = old[k][1]
-            columns[k] = (w0[:, i], None if wo is None else wo[:, i])
-        self._columns = columns
-        return w0, wo
+        return rv, ov
 
     def shade(self, lights: LightSet | None, coeffs_indirect: np.ndarray, transfer: np.ndarray,
               albedo: object, object_colours: np.ndarray | None = None,
@@ -497,9 +486,9 @@ class DifferentialShader:
             if kept is not None and kept[0] is lights and kept[1] == with_object:
                 d0, d1, do = kept[2:]  # the same light set as last call: its terms are unchanged
             else:
-                w0, w1, wo = self._light_weights(lights, with_object=with_object)
-                d0, d1 = w0 @ lights.power, w1 @ lights.power
-                do = None if wo is None else wo @ lights.power
+                rv, ov = self._shadows(lights, with_object=with_object)
+                d0, d1 = _light_irradiance(lights, self.receivers.vertices, self.receivers.normals, rv)
+                do = None if ov is None else _light_irradiance(lights, self.occluder.vertices, self.object_normals, ov)[1]
                 self._direct = (lights, with_object, d0, d1, do)
         a = np.asarray(albedo, np.float64).reshape(3)
         if object_colours is not None:
