@@ -68,6 +68,8 @@ def light_irradiance_kernel(points_t, normals_t, positions, has_pos, directions,
     for j in range(n):
         p0, p1, p2 = power[j, 0], power[j, 1], power[j, 2]
         vis = visible_t[j]
+        # the light's kind is chosen once per light, so that each inner loop (the same sums, written
+        # twice) has no branch but its selects
         if has_pos[j]:
             q0, q1, q2 = positions[j, 0], positions[j, 1], positions[j, 2]
             inten = intensity[j]
