@@ -12,9 +12,9 @@ On each real surface point x with normal n near the object (a vertex of the
 
 with I_i = power_i · |p_i − origin|² the light's intensity (a distant light, without a position, gives
 power_i max(0, n·d_i); a virtual area light is the sum of its points, each with its part of the
-power: :attr:`rgbd_envmap.lights.LightSet.point_lights`), V_i the visibility of light i through the virtual object (a shadow ray from x
-to the light's position against the object's mesh), B_k(x) = ∫_blocked max(0, n·ω) Y_k(ω) dω the SH
-projection of the directions in which x sees the object, F(x) = ∫_blocked max(0, n·ω) dω their
+power: :attr:`rgbd_envmap.lights.LightSet.point_lights`), V_i the visibility of light i through the
+virtual object (a shadow ray from x to the light's position against the object's mesh),
+B_k(x) = ∫_blocked max(0, n·ω) Y_k(ω) dω the SH projection of the directions in which x sees the object, F(x) = ∫_blocked max(0, n·ω) dω their
 cosine-weighted solid angle and L_obj(ω) the object's outgoing radiance where the ray x + tω meets it
 (the light it reflects onto x, paper 001's colour bleeding from virtual to real: the object's side that
 faces x, so a lamp-lit top does not light the table under it). B, F and the last integral's weights
@@ -459,8 +459,8 @@ class DifferentialShader:
               object_coeffs: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(object vertex radiance (V, 3) float32, receiver ratio (R, 3) float32) for the lights (None:
         no direct part; area lights, with ``points``, as a point light per point, so that the shadow
-        rays to a light's points give its penumbra) and the indirect SH coefficients (n², 3); ``transfer`` (V, ≥ n²) the object's
-        PRT transfer (its first n² columns are used). ``object_colours`` (V, 3): the object's radiance
+        rays to a light's points give its penumbra) and the indirect SH coefficients (n², 3);
+        ``transfer`` (V, ≥ n²) the object's PRT transfer (its first n² columns are used). ``object_colours`` (V, 3): the object's radiance
         as shaded elsewhere (PRT of the whole map): returned as it is and used for the light it
         reflects onto the receivers; the lights' self-shadow rays are then not cast.
         ``object_coeffs`` (m², 3): the coefficients ``object_colours`` were shaded with by PRT
