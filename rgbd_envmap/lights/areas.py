@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rgbd_envmap._kernels.kmeans import weighted_kmeans_kernel
+from rgbd_envmap._kernels.kmeans import split_parts_kernel, weighted_kmeans_kernel
 from rgbd_envmap.checks import check_number
 from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.geometry import equirect_directions
@@ -84,37 +84,15 @@ def seed_centres(points: np.ndarray, weights: np.ndarray, k: int) -> np.ndarray:
 
 def split_parts(points: np.ndarray, weights: np.ndarray, m: int) -> list[np.ndarray]:
     """Index arrays of ``m`` parts of ``points`` (N, 3) of about equal weight: recursive cuts across
-    the widest world axis of the weighted positions (module docstring). Parts may be empty (fewer
-    points than parts, or one point holding most of the weight)."""
-    todo = [(np.arange(len(points)), m)]
-    out = []
-    while todo:
-        idx, parts = todo.pop()
-        if parts == 1 or len(idx) <= 1:
-            out.append(idx)
-            out.extend(np.zeros(0, np.int64) for _ in range(parts - 1))
-            continue
-        q, w = points[idx], weights[idx]
-        tw = float(w.sum())
-        ww = w if tw > 0 else np.ones(len(idx))
-        tw = float(ww.sum())
-        mu = (ww @ q) / tw
-        var = ww @ (q - mu) ** 2
-        # the first world axis (x, y, z) with at least 0.8 of the largest spread: a round lamp's
-        # parts do not turn with the noise of its pixels from one frame to the next, as a principal
-        # axis of a nearly isotropic spread would (their shadow rays are then reused)
-        axis = int(np.flatnonzero(var >= 0.8 * var.max())[0])
-        order = np.argsort(q[:, axis], kind="stable")
-        cum = np.cumsum(ww[order])
-        a = (parts + 1) // 2
-        target = tw * a / parts
-        cut = int(np.searchsorted(cum, target, side="left")) + 1  # the first prefix reaching the target
-        if cut > 1 and target - cum[cut - 2] < cum[min(cut, len(cum)) - 1] - target:
-            cut -= 1  # one pixel fewer is nearer the target
-        cut = min(max(cut, 1), len(idx) - 1)
-        todo.append((idx[order[cut:]], parts - a))
-        todo.append((idx[order[:cut]], a))
-    return out
+    the widest world axis of the weighted positions (module docstring; compiled, bit for bit
+    :func:`rgbd_envmap.reference.lights.split_parts`). Parts may be empty (fewer points than parts,
+    or one point holding most of the weight)."""
+    pts = np.ascontiguousarray(points, np.float64)
+    order = np.arange(len(pts), dtype=np.int64)
+    part_of = np.zeros(len(pts), np.int64)
+    split_parts_kernel(pts, np.ascontiguousarray(weights, np.float64), order, np.array([0, len(pts)], np.int64),
+                       int(m), part_of)
+    return [order[part_of[order] == p] for p in range(int(m))]
 
 
 def area_samples(inputs: MapInputs, n: int, state: AreaLightState | None = None, points: int = 8,
@@ -154,6 +132,17 @@ def area_samples(inputs: MapInputs, n: int, state: AreaLightState | None = None,
         state.frames += 1
     order = np.argsort(labels, kind="stable")
     bounds = np.searchsorted(labels[order], np.arange(k + 1))
+    # every light's parts in one compiled call, then each part's sums by (light, part)
+    part_of = np.zeros(len(pos), np.int64)
+    split_parts_kernel(np.ascontiguousarray(pos), np.ascontiguousarray(weight, np.float64), order.copy(),
+                       bounds.astype(np.int64), points, part_of)
+    key = labels * points + part_of
+    size = k * points
+    part_w = np.bincount(key, weights=weight, minlength=size)
+    part_n = np.bincount(key, minlength=size)
+    part_wx = np.stack([np.bincount(key, weights=weight * pos[:, c], minlength=size) for c in range(3)], axis=1)
+    part_x = np.stack([np.bincount(key, weights=pos[:, c], minlength=size) for c in range(3)], axis=1)
+    part_e = np.stack([np.bincount(key, weights=energy[:, c], minlength=size) for c in range(3)], axis=1)
     out_d, out_p, out_o, out_x, out_pts, out_pp = [], [], [], [], [], []
     for j in range(k):
         idx = order[bounds[j]:bounds[j + 1]]
@@ -169,16 +158,12 @@ def area_samples(inputs: MapInputs, n: int, state: AreaLightState | None = None,
         else:  # the light's points surround the origin: the mean of its directions
             s = (wj if tw > 0 else np.ones(len(idx))) @ dirs[idx]
             d = s / np.linalg.norm(s) if np.linalg.norm(s) > 0 else dirs[idx[0]]
-        part_pos = np.empty((points, 3))
-        part_pow = np.zeros((points, 3))
-        for s_, part in enumerate(split_parts(pos[idx], wj, points)):
-            if len(part):
-                wp = wj[part]
-                t = float(wp.sum())
-                part_pos[s_] = (wp @ pos[idx][part]) / t if t > 0 else pos[idx][part].mean(axis=0)
-                part_pow[s_] = energy[idx][part].sum(axis=0)
-            else:
-                part_pos[s_] = x
+        sl = slice(j * points, (j + 1) * points)
+        pw, pn = part_w[sl, None], part_n[sl, None]
+        # a part's energy-weighted mean position; without energy its plain mean; empty: the light's
+        part_pos = np.where(pw > 0, part_wx[sl] / np.where(pw > 0, pw, 1.0),
+                            np.where(pn > 0, part_x[sl] / np.maximum(pn, 1), x))
+        part_pow = part_e[sl]
         out_d.append(d)
         out_p.append(energy[idx].sum(axis=0))
         out_o.append(float(omega[idx].sum()))

@@ -16,7 +16,7 @@ import numpy as np
 from rgbd_envmap.reference.sh_projection import pixel_directions, pixel_solid_angles  # noqa: F401 (used here and by tests)
 
 __all__ = ["pixel_directions", "pixel_solid_angles", "map_integral", "brute_force_irradiance", "luminance_cdf",
-           "cell_sums", "direct_split", "light_grid", "pharr", "q2tree", "room_map", "weighted_kmeans", "LUMINANCE"]
+           "cell_sums", "direct_split", "light_grid", "pharr", "q2tree", "room_map", "split_parts", "weighted_kmeans", "LUMINANCE"]
 
 #: Rec. 709 luminance weights.
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
@@ -271,3 +271,46 @@ def room_map(height: int = 128, width: int = 256, lamp: float = 200.0, seed: int
     lamp_px = (axis == 2) & (d[..., 2] > 0) & (np.hypot(p[..., 0] - 0.4, p[..., 1] + 0.3) < 0.15)
     rad[lamp_px] = lamp * np.array([1.0, 0.85, 0.6])
     return rad.astype(np.float32), t.astype(np.float32), origin
+
+
+def split_parts(points, weights, m) -> list[np.ndarray]:
+    """The parts of a virtual area light (:mod:`rgbd_envmap.lights.areas`): index arrays of ``m``
+    parts of ``points`` (N, 3) of about equal ``weights``, in the order the cuts make them.
+
+    A group that is to hold p > 1 parts and has more than one point is cut in two: along the first
+    world axis (x, y, z) whose weighted spread Σ w (q − μ)² is at least 0.8 of the largest, its
+    points sorted by that coordinate (stable), at the prefix whose weight is nearest ⌈p/2⌉ / p of the
+    group's (the first prefix reaching it, or one point fewer if that is nearer; at least one point
+    on each side). The first ⌈p/2⌉ parts come from the lower side, then the rest from the upper; a
+    group of one part, or of one point, is a part (and p − 1 empty ones). Zero total weight counts
+    every point as 1. Every sum is taken point after point in the group's order (``np.cumsum``), as
+    the kernel adds them."""
+    P = np.asarray(points, np.float64)
+    w = np.asarray(weights, np.float64)
+    todo = [(np.arange(len(P)), int(m))]
+    out = []
+    while todo:
+        idx, parts = todo.pop()
+        if parts == 1 or len(idx) <= 1:
+            out.append(idx)
+            out.extend(np.zeros(0, np.int64) for _ in range(parts - 1))
+            continue
+        q = P[idx]
+        ww = w[idx]
+        if not np.cumsum(ww)[-1] > 0:
+            ww = np.ones(len(idx))
+        tw = np.cumsum(ww)[-1]
+        mu = np.cumsum(ww[:, None] * q, axis=0)[-1] / tw
+        var = np.cumsum(ww[:, None] * ((q - mu) * (q - mu)), axis=0)[-1]
+        axis = int(np.flatnonzero(var >= 0.8 * var.max())[0])
+        order = np.argsort(q[:, axis], kind="stable")
+        cum = np.cumsum(ww[order])
+        a = (parts + 1) // 2
+        target = tw * a / parts
+        cut = int(np.searchsorted(cum, target, side="left")) + 1
+        if cut > 1 and target - cum[cut - 2] < cum[min(cut, len(cum)) - 1] - target:
+            cut -= 1
+        cut = min(max(cut, 1), len(idx) - 1)
+        todo.append((idx[order[cut:]], parts - a))
+        todo.append((idx[order[:cut]], a))
+    return out

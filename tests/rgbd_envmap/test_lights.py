@@ -620,6 +620,26 @@ def test_split_parts_cuts_a_light_into_parts_of_equal_weight():
     assert sorted(len(p) for p in split_parts(cloud[:40], np.zeros(40), 4)) == [10] * 4
 
 
+
+@pytest.mark.parametrize("case", ["cloud", "ties", "zero weights", "few points", "one heavy point"])
+def test_split_parts_kernel_is_its_reference_bit_for_bit(case):
+    rng = np.random.default_rng(6)
+    pts, w = rng.normal(0, 1, (300, 3)), rng.random(300) ** 3
+    if case == "ties":  # a disc: equal spreads, repeated coordinates
+        pts = np.round(np.concatenate([rng.normal(0, 1, (300, 2)), np.zeros((300, 1))], 1), 1)
+    elif case == "zero weights":
+        w = np.zeros(300)
+    elif case == "few points":
+        pts, w = pts[:5], w[:5]
+    elif case == "one heavy point":
+        w[17] = 1e6
+    for m in (1, 2, 3, 8, 13):
+        got = split_parts(pts, w, m)
+        want = ref.split_parts(pts, w, m)
+        assert len(got) == len(want) == m
+        for g, e in zip(got, want):
+            np.testing.assert_array_equal(g, e)
+
 # --- hard cases -----------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("method", ALL)
