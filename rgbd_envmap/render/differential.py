@@ -392,18 +392,16 @@ class DifferentialShader:
         self._bounce_t = None
 
     def _seen_from_object(self, lights: LightSet) -> tuple[list[str], np.ndarray]:
-        """Each light's kind ("p" positioned, "d" distant) and unit direction from the object's centre."""
-        kinds, dirs = [], np.array(lights.directions, np.float64)
-        for i in range(len(lights)):
-            if lights.positions is not None and np.isfinite(lights.positions[i]).all():
-                v = lights.positions[i] - self.occluder.centre
-                nv = float(np.linalg.norm(v))
-                if nv > 0:
-                    kinds.append("p")
-                    dirs[i] = v / nv
-                    continue
-            kinds.append("d")
-        return kinds, dirs
+        """Each light's kind ("p" positioned, "d" distant: no position, or at the object's centre)
+        and unit direction from the object's centre (a distant light's own)."""
+        dirs = np.array(lights.directions, np.float64)
+        positioned = np.zeros(len(lights), bool)
+        if lights.positions is not None and len(lights):
+            v = np.where(np.isfinite(lights.positions), lights.positions, 0.0) - self.occluder.centre
+            nv = np.linalg.norm(v, axis=1)
+            positioned = np.isfinite(lights.positions).all(axis=1) & (nv > 0)
+            dirs[positioned] = v[positioned] / nv[positioned, None]
+        return ["p" if q else "d" for q in positioned.tolist()], dirs
 
     def _shadows(self, lights: LightSet, with_object: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """(R, n) receiver and (V, n) object visibility of each light (None without ``with_object``:
@@ -423,7 +421,9 @@ class DifferentialShader:
         match = np.full(len(lights), -1)
         if old and len(lights):
             c = dirs @ np.array([e[1] for e in old]).T
-            usable = np.array([[e[0] == k and (e[3] is not None or not with_object) for e in old] for k in kinds])
+            old_kind = np.array([e[0] for e in old])
+            has_object_rays = np.array([e[3] is not None or not with_object for e in old])
+            usable = (np.array(kinds)[:, None] == old_kind[None, :]) & has_object_rays[None, :]
             c = np.where(usable, c, -np.inf)
             last = c.shape[1] - 1 - np.argmax(c[:, ::-1], axis=1)
             ok = c[np.arange(len(lights)), last] >= cos_tol
