@@ -68,35 +68,26 @@ def light_irradiance_kernel(points_t, normals_t, positions, has_pos, directions,
     for j in range(n):
         p0, p1, p2 = power[j, 0], power[j, 1], power[j, 2]
         vis = visible_t[j]
-        # the light's kind is chosen once per light, so that each inner loop (the same sums, written
-        # twice) has no branch but its selects
-        if has_pos[j]:
-            q0, q1, q2 = positions[j, 0], positions[j, 1], positions[j, 2]
-            inten = intensity[j]
-            for i in range(N):
+        positioned = has_pos[j]
+        q0, q1, q2 = positions[j, 0], positions[j, 1], positions[j, 2]
+        e0, e1, e2 = directions[j, 0], directions[j, 1], directions[j, 2]
+        inten = intensity[j]
+        for i in range(N):  # (the test of the light's kind is the same for every i: LLVM hoists it)
+            if positioned:
                 d0 = q0 - px[i]
                 d1 = q1 - py[i]
                 d2 = q2 - pz[i]
                 c = nx[i] * d0 + ny[i] * d1 + nz[i] * d2
                 r2 = max(d0 * d0 + d1 * d1 + d2 * d2, 1e-12)
                 w = c * (inten / (r2 * np.sqrt(r2)))
-                w = w if c > 0.0 else 0.0
-                wv = w if vis[i] else 0.0
-                a0[i] += w * p0
-                a1[i] += w * p1
-                a2[i] += w * p2
-                b0[i] += wv * p0
-                b1[i] += wv * p1
-                b2[i] += wv * p2
-        else:
-            e0, e1, e2 = directions[j, 0], directions[j, 1], directions[j, 2]
-            for i in range(N):
+            else:
                 c = nx[i] * e0 + ny[i] * e1 + nz[i] * e2
-                w = c if c > 0.0 else 0.0
-                wv = w if vis[i] else 0.0
-                a0[i] += w * p0
-                a1[i] += w * p1
-                a2[i] += w * p2
-                b0[i] += wv * p0
-                b1[i] += wv * p1
-                b2[i] += wv * p2
+                w = c
+            w = w if c > 0.0 else 0.0
+            wv = w if vis[i] else 0.0
+            a0[i] += w * p0
+            a1[i] += w * p1
+            a2[i] += w * p2
+            b0[i] += wv * p0
+            b1[i] += wv * p1
+            b2[i] += wv * p2

@@ -274,30 +274,36 @@ def test_bounce_weights_sum_to_the_view_factor_and_see_the_side_facing_the_recei
     np.testing.assert_allclose(mean, o.blocked_cos[:, None] * colours.mean(axis=0)[None], rtol=1e-12)
 
 
+def _lights_and_receivers(seed: int, n: int, m: int, distant: list[int]):
+    """Random unit directions (n, 3), an origin, positions along them 0.3–3 m out (NaN rows: the
+    ``distant`` lights), and m receiver points around the origin with random unit normals."""
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    origin = np.array([0.2, -0.1, 1.0])
+    pos = origin + d * rng.uniform(0.3, 3.0, (n, 1))
+    pos[distant] = np.nan
+    pts = origin + rng.normal(scale=0.5, size=(m, 3))
+    nrm = rng.normal(size=(m, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return rng, d, origin, pos, pts, nrm
+
+
 def test_light_weights_kernel_is_its_reference_bit_for_bit():
     """The compiled weights against the pair-by-pair reference: positioned and distant lights mixed
     (a NaN position is a distant light), points on a light (the 1e-12 floor), back-facing normals."""
     from rgbd_envmap.reference.render_differential import light_weights
     from rgbd_envmap.render.differential import _light_weights_unshadowed
 
-    rng = np.random.default_rng(11)
     n = 9
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    origin = np.array([0.2, -0.1, 1.0])
-    pos = origin + d * rng.uniform(0.3, 3.0, (n, 1))
-    pos[[2, 5]] = np.nan
-    pts = origin + rng.normal(scale=0.5, size=(300, 3))
+    _, d, origin, pos, pts, nrm = _lights_and_receivers(11, n, 300, [2, 5])
     pts[7] = pos[0]  # on a light
-    nrm = rng.normal(size=(300, 3))
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     for lights in (LightSet(d, np.ones((n, 3)), "t", positions=pos, origin=origin), LightSet(d, np.ones((n, 3)), "t")):
         got = _light_weights_unshadowed(lights, pts, nrm)
         want = light_weights(pts, nrm, lights.positions, lights.directions, lights.origin)
         np.testing.assert_array_equal(got, want)
         assert (got >= 0).all() and np.isfinite(got).all()
     assert _light_weights_unshadowed(lights, pts[:0], nrm[:0]).shape == (0, n)
-
 
 
 def test_light_irradiance_kernel_is_its_reference_bit_for_bit():
@@ -307,16 +313,8 @@ def test_light_irradiance_kernel_is_its_reference_bit_for_bit():
     from rgbd_envmap.reference.render_differential import light_irradiance
     from rgbd_envmap.render.differential import _light_irradiance, _light_weights_unshadowed
 
-    rng = np.random.default_rng(12)
     n = 11
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    origin = np.array([0.2, -0.1, 1.0])
-    pos = origin + d * rng.uniform(0.3, 3.0, (n, 1))
-    pos[[1, 6]] = np.nan
-    pts = origin + rng.normal(scale=0.5, size=(250, 3))
-    nrm = rng.normal(size=(250, 3))
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    rng, d, origin, pos, pts, nrm = _lights_and_receivers(12, n, 250, [1, 6])
     power = rng.uniform(0.0, 2.0, (n, 3))
     vis = rng.random((250, n)) < 0.7
     lights = LightSet(d, power, "t", positions=pos, origin=origin)
