@@ -11,10 +11,12 @@ a relight:
 - ``receiver_mesh``: the real surfaces near the object from the map's depth (with the support plane
   merged in), and ``receiver_occlusion``: their SH occlusion by the object (together: "Receiver
   geometry", every ``render.geometry_every`` relights);
-- ``shade_receivers``: the receivers' ratio E_with / E_without for the current lights, shadow rays
-  reused ("Shade receivers"); ``shade_receivers_cold``: the same with every shadow ray cast anew (a
+- ``shade_receivers``: the receivers' ratio E_with / E_without for the current lights, their terms
+  reused (the same light set: what a frame that keeps its lights computes); ``shade_receivers_cold``: the same with every shadow ray cast anew (a
   relight right after a receiver rebuild);
 - ``shade_object_lights``: ``render.object_shading = "lights"`` (the object's self-shadow rays too);
+- ``shade_and_faces``: ``shade_receivers`` and the receiver triangles that change a pixel (what the
+  stage "Shade receivers" runs when the lights are kept);
 - ``light_irradiance``: the lights' irradiance at the receivers without and with shadows in the
   fused compiled pass, beside ``light_weights_and_products``: the same from the (R, n) weights and
   two matrix products (the form it replaced), for the current point lights (trees that have them).
@@ -80,7 +82,11 @@ def main(argv: list[str] | None = None) -> int:
         if colours is None:
             return shader.shade(pipe.lights, pipe.coeffs_indirect[:n], pipe._transfer, pipe._object.albedo)
         return shader.shade(pipe.lights, pipe.coeffs_indirect[:n], pipe._transfer, pipe._object.albedo,
-                            object_colours=colours)
+                            object_colours=colours, object_coeffs=pipe.coeffs[:n])  # as the pipeline calls it
+
+    def shade_and_faces():
+        _, ratio = shade(pipe.colours) if prt_mode else shade()
+        return shader.active_faces(ratio)
 
     def cold():
         shader.set_receivers(receivers, bands)  # clears the kept shadow rays
@@ -91,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         "receiver_occlusion": (lambda: shader.set_receivers(receivers, bands), None),
         "shade_receivers": ((lambda: shade(pipe.colours)) if prt_mode else shade, None),
         "shade_object_lights": (lambda: shade(None), None),
+        "shade_and_faces": (shade_and_faces, None),
     }
     from rgbd_envmap.render import differential as diff
 

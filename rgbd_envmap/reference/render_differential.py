@@ -22,7 +22,8 @@ from rgbd_envmap.colour import srgb8_to_linear_lut
 from rgbd_envmap.reference.render_composite import encode_srgb8
 from rgbd_envmap.render.layer import Layer
 
-__all__ = ["RATIO_EPS", "composite_differential", "light_weights"]
+__all__ = ["RATIO_EPS", "composite_differential", "faces_touching", "light_irradiance", "light_weights",
+           "receiver_ratio_terms", "shadow_ray_candidates"]
 
 RATIO_EPS = 1e-3
 
@@ -126,3 +127,45 @@ def light_irradiance(points, normals, positions, directions, origin, power, visi
         out_all = out_all + w[:, j:j + 1] * p[j]
         out_visible = out_visible + (w[:, j] * v[:, j])[:, None] * p[j]
     return out_all, out_visible
+
+
+def receiver_ratio_terms(t0, t1, coeffs, bt, bc, add0, add1, floor, keep, *, floor_rel: float = 1e-6,
+                         high: float = 4.0, eps: float = RATIO_EPS) -> tuple[np.ndarray, np.ndarray]:
+    """(ratio (R, 3) float32, far (R,) bool): the receivers' E_with / E_without from their SH
+    transfers ``t0``, ``t1`` (K, R) (without / with the object; the first len(``coeffs``) rows meet
+    the indirect coefficients), the object's reflected light ``bt`` (Kb, R) · ``bc`` (Kb, 3), the
+    lights' terms ``add0``, ``add1`` (R, 3) and the albedo floor ``floor`` (R, 3) or None, of whose
+    missed light the object leaves ``keep`` (R,):
+
+        E0 = max(Σ_k t0[k] c_k, 0) + add0,   E1 = (max(Σ_k t1[k] c_k, 0) + Σ_k bt[k] bc_k) + add1,
+        m = max(floor − E0, 0),   E0 += m,   E1 += m · keep,
+
+    each Σ in float64 with k ascending from 0. ratio = E1 / E0 where E0 exceeds ``floor_rel`` × the
+    largest E0 (else 1: no light to change), clipped to [0, ``high``], as float32; far: the vertices
+    with |ratio − 1| > ``eps`` in some channel (the ones that change a pixel)."""
+    def sums(t, c):
+        t, c = np.asarray(t), np.asarray(c, np.float64)
+        s = np.zeros((t.shape[1], 3))
+        for k in range(len(c)):
+            s = s + t[k].astype(np.float64)[:, None] * c[k][None, :]
+        return s
+
+    e0 = np.maximum(sums(t0, coeffs), 0.0) + add0
+    e1 = (np.maximum(sums(t1, coeffs), 0.0) + sums(bt, bc)) + add1
+    if floor is not None:
+        m = np.maximum(np.asarray(floor, np.float64) - e0, 0.0)
+        e0 = e0 + m
+        e1 = e1 + m * np.asarray(keep, np.float64)[:, None]
+    lim = floor_rel * max(float(e0.max(initial=0.0)), 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(e0 > lim, e1 / e0, 1.0)
+    ratio = np.minimum(np.maximum(r, 0.0), high).astype(np.float32)
+    far = (np.abs(ratio.astype(np.float64) - 1.0) > eps).any(axis=1)
+    return ratio, far
+
+
+def faces_touching(faces, far) -> np.ndarray:
+    """(F', 3) the rows of ``faces`` (F, 3) with a vertex marked in ``far``, in their order."""
+    f = np.asarray(faces)
+    far = np.asarray(far, bool)
+    return f[far[f].any(axis=1)]

@@ -51,7 +51,9 @@ from __future__ import annotations
 import numpy as np
 
 from rgbd_envmap import sh
+from rgbd_envmap._kernels.differential import RATIO_EPS
 from rgbd_envmap._kernels.light_weights import light_irradiance_kernel, light_weights_kernel
+from rgbd_envmap._kernels.receiver_shading import faces_touching_kernel, receiver_ratio_kernel
 from rgbd_envmap._kernels.shadow_rays import shadow_ray_candidates_kernel
 from rgbd_envmap.checks import check_array, check_number
 from rgbd_envmap.errors import InvalidInputError
@@ -346,7 +348,12 @@ class DifferentialShader:
         self._occlusion: ReceiverOcclusion | None = None
         self._floor: np.ndarray | None = None
         self._bands = 0
-        self._t0 = self._t1 = np.zeros((0, 0))
+        # the receivers' SH transfer without / with the object, (K, R) float32 (the kernel's layout),
+        # the share of missed light the object leaves each receiver, and the kernel's scratch
+        self._t0 = self._t1 = np.zeros((0, 0), np.float32)
+        self._keep = np.zeros(0)
+        self._scratch = np.zeros((3, 3, 0))
+        self._far: tuple | None = None  # (the last ratio returned, its far flags)
         # the shadow rays of recent lights: (kind, unit direction from the object's centre,
         # receiver visibility (R,) bool, object visibility (V,) bool or None)
         self._visibility: list[tuple[str, np.ndarray, np.ndarray, np.ndarray | None]] = []
@@ -385,8 +392,11 @@ class DifferentialShader:
 
         t0 = unoccluded_transfer(receivers.normals, bands).astype(np.float64) if len(receivers) else \
             np.zeros((0, bands * bands))
-        self._t0 = t0
-        self._t1 = t0 - self._occlusion.blocked_sh
+        self._t0 = np.ascontiguousarray(t0.T, np.float32)
+        self._t1 = np.ascontiguousarray((t0 - self._occlusion.blocked_sh).T, np.float32)
+        self._keep = np.maximum(1.0 - self._occlusion.blocked_cos / np.pi, 0.0)
+        self._scratch = np.empty((3, 3, len(receivers)))
+        self._far = None
         self._visibility = []
         self._direct = None
         self._bounce_t = None
@@ -500,39 +510,49 @@ class DifferentialShader:
         R = len(self.receivers)
         if R == 0:
             return colours, np.ones((0, 3), np.float32)
-        e0 = np.maximum(self._t0[:, :nk] @ c, 0.0)
-        e1 = np.maximum(self._t1[:, :nk] @ c, 0.0)
-        # the object's light onto each receiver, from its side that faces it
+        zeros = np.zeros((R, 3))
+        add0, add1 = (d0, d1) if has else (zeros, zeros)
+        # the object's light onto each receiver, from its side that faces it: from the coefficients
+        # through the bounce weights × transfer, or from the shaded colours through the weights
         if object_coeffs is not None and object_colours is not None and self._occlusion.bounce is not None:
-            e1 += self._bounced_sh(transfer, np.asarray(object_coeffs, np.float64), a)
+            bt = self._bounced_sh(transfer)
+            bc = np.ascontiguousarray(np.asarray(object_coeffs, np.float64)[:bt.shape[0]] * (a / np.pi)[None])
         else:
-            e1 += self._occlusion.bounced(colours)
-        if has:
-            e0 += d0
-            e1 += d1
-        if self._floor is not None:  # light the map missed (set_receivers)
-            missing = np.maximum(self._floor - e0, 0.0)
-            e0 += missing
-            e1 += missing * np.maximum(1.0 - self._occlusion.blocked_cos / np.pi, 0.0)[:, None]
-        ratio = receiver_ratio(e0, e1)
+            bt, bc = np.zeros((0, R), np.float32), np.zeros((0, 3))
+            add1 = add1 + self._occlusion.bounced(colours)
+        ratio = np.empty((R, 3), np.float32)
+        far = np.empty(R, bool)
+        use_floor = self._floor is not None  # light the map missed (set_receivers)
+        s0, s1, sb = self._scratch
+        receiver_ratio_kernel(self._t0, self._t1, nk, c, bt, bc.shape[0], bc, np.ascontiguousarray(add0, np.float64),
+                              np.ascontiguousarray(add1, np.float64), self._floor if use_floor else zeros, use_floor,
+                              self._keep, 1e-6, 4.0, RATIO_EPS, s0, s1, sb, ratio, far)
+        self._far = (ratio, far)
         return colours, ratio
 
-    def _bounced_sh(self, transfer: np.ndarray, coeffs: np.ndarray, albedo: np.ndarray) -> np.ndarray:
-        """(R, 3) the object's PRT light onto the receivers: albedo / π · (bounce @ transfer) @ coeffs,
-        the bracket computed once per receiver mesh and transfer array (an array changed in place
-        is not seen: the pipeline's transfer is fixed per object)."""
+    def _bounced_sh(self, transfer: np.ndarray) -> np.ndarray:
+        """(K, R) float32 the bounce weights × the object's transfer, transposed: with the object's
+        coefficients × albedo / π, the object's PRT light onto the receivers. Computed once per
+        receiver mesh and transfer array (an array changed in place is not seen: the pipeline's
+        transfer is fixed per object)."""
         t = np.asarray(transfer)
         key = (id(transfer), t.shape)
         if self._bounce_t is None or self._bounce_t[0] != key:
-            self._bounce_t = (key, np.asarray(self._occlusion.bounce @ t.astype(np.float64)), transfer)
-        bt = self._bounce_t[1]
-        k = min(coeffs.shape[0], bt.shape[1])
-        return (bt[:, :k] @ coeffs[:k]) * (albedo / np.pi)[None]
+            bt = np.asarray(self._occlusion.bounce @ t.astype(np.float64))
+            self._bounce_t = (key, np.ascontiguousarray(bt.T, np.float32), transfer)
+        return self._bounce_t[1]
 
-    def active_faces(self, ratio: np.ndarray, eps: float = 1e-3) -> np.ndarray:
+    def active_faces(self, ratio: np.ndarray, eps: float = RATIO_EPS) -> np.ndarray:
         """(F', 3) int32 the receiver triangles with a vertex whose ratio is farther than ``eps`` from 1
         in some channel: the others change no pixel (the composite leaves a pixel within 1e-3 of a
-        ratio of 1 as it is), so they need not be rasterised."""
-        far = (np.abs(np.asarray(ratio, np.float64) - 1.0) > eps).any(axis=1)
-        f = self.receivers.faces
-        return np.ascontiguousarray(f[far[f[:, 0]] | far[f[:, 1]] | far[f[:, 2]]])
+        ratio of 1 as it is), so they need not be rasterised. The flags of the ratio :meth:`shade`
+        returned last are reused."""
+        r = np.asarray(ratio)
+        if self._far is not None and self._far[0] is ratio and eps == RATIO_EPS:
+            far = self._far[1]
+        else:
+            far = (np.abs(r.astype(np.float64) - 1.0) > eps).any(axis=1)
+        f = np.ascontiguousarray(self.receivers.faces)
+        out = np.empty_like(f)
+        n = faces_touching_kernel(f, far, out)
+        return out[:n].copy()

@@ -368,6 +368,70 @@ def test_lights_plus_indirect_sh_count_the_energy_once():
     np.testing.assert_allclose(e, brute, rtol=0.03)
 
 
+def _receiver_terms(R: int, K: int, Kb: int, seed: int = 5):
+    """Random receivers' transfers and terms for the ratio kernel: float32 transfers (K, R), some
+    rows with no light at all (E0 = 0), bright object light (ratios clipped at 4), a floor above
+    E0 at a third of the rows."""
+    rng = np.random.default_rng(seed)
+    t0 = rng.normal(0.3, 0.5, (K, R)).astype(np.float32)
+    t1 = (t0 - np.abs(rng.normal(0, 0.2, (K, R)))).astype(np.float32)
+    bt = np.abs(rng.normal(0, 0.1, (Kb, R))).astype(np.float32)
+    coeffs = rng.normal(0.5, 0.3, (K, 3))
+    bc = np.abs(rng.normal(0, 2.0, (Kb, 3)))
+    add0 = np.abs(rng.normal(0, 1, (R, 3)))
+    add1 = add0 * rng.uniform(0, 1, (R, 3))
+    t0[:, :5] = t1[:, :5] = 0.0
+    add0[:5] = add1[:5] = 0.0
+    bt[:, :3] = 0.0
+    floor = np.where(rng.random((R, 1)) < 0.3, 3.0 * add0 + 1.0, 0.0)
+    floor[:5] = 0.0
+    keep = rng.uniform(0, 1, R)
+    return t0, t1, coeffs, bt, bc, add0, add1, floor, keep
+
+
+@pytest.mark.parametrize("R,K,nk,Kb,use_floor", [(1300, 25, 25, 25, True), (1300, 25, 9, 16, False),
+                                                 (7, 9, 4, 0, True), (0, 9, 9, 9, True)])
+def test_receiver_ratio_kernel_is_its_reference_bit_for_bit(R, K, nk, Kb, use_floor):
+    """The fused receiver shading (three blocked SH products, the floor, the ratio, the far flags)
+    against the reference's plain numpy sums; across a block boundary (R > 512), with fewer
+    coefficients than the transfers hold, no object light, no receivers."""
+    from rgbd_envmap._kernels.differential import RATIO_EPS
+    from rgbd_envmap._kernels.receiver_shading import receiver_ratio_kernel
+    from rgbd_envmap.reference.render_differential import receiver_ratio_terms
+
+    t0, t1, coeffs, bt, bc, add0, add1, floor, keep = _receiver_terms(R, K, Kb)
+    ratio, far = np.empty((R, 3), np.float32), np.empty(R, bool)
+    s = np.empty((3, 3, R))
+    n_far = receiver_ratio_kernel(t0, t1, nk, coeffs, bt, Kb, bc, add0, add1, floor, use_floor, keep, 1e-6, 4.0,
+                                  RATIO_EPS, s[0], s[1], s[2], ratio, far)
+    want_ratio, want_far = receiver_ratio_terms(t0, t1, coeffs[:nk], bt, bc[:Kb], add0, add1,
+                                                floor if use_floor else None, keep)
+    np.testing.assert_array_equal(ratio, want_ratio)
+    np.testing.assert_array_equal(far, want_far)
+    assert n_far == int(want_far.sum())
+    if R:
+        assert (ratio[:5] == 1).all() and not far[:5].any()  # no light: left as it is
+        assert ratio.max() <= 4.0 and ratio.min() >= 0.0
+        # the products themselves against numpy's matrix products, to rounding
+        e0 = np.maximum(t0[:nk].T.astype(np.float64) @ coeffs[:nk], 0) + add0
+        if use_floor:
+            e0 = np.maximum(e0, floor)
+        np.testing.assert_allclose(s[0].T, e0, rtol=1e-12, atol=1e-12)
+
+
+def test_faces_touching_kernel_is_its_reference():
+    from rgbd_envmap._kernels.receiver_shading import faces_touching_kernel
+    from rgbd_envmap.reference.render_differential import faces_touching
+
+    rng = np.random.default_rng(2)
+    faces = rng.integers(0, 200, (600, 3)).astype(np.int32)
+    for far in (rng.random(200) < 0.1, np.zeros(200, bool), np.ones(200, bool)):
+        out = np.empty_like(faces)
+        n = faces_touching_kernel(faces, far, out)
+        np.testing.assert_array_equal(out[:n], faces_touching(faces, far))
+    assert faces_touching_kernel(faces[:0], far, out) == 0
+
+
 def test_receiver_ratio_floor_and_clip():
     r = receiver_ratio(np.array([[1.0, 2, 0], [0, 0, 0]]), np.array([[0.5, 10, 3], [1, 1, 1]]))
     np.testing.assert_allclose(r, [[0.5, 4.0, 1.0], [1, 1, 1]])
