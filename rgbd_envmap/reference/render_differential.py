@@ -16,14 +16,16 @@ Per pixel, in this order of precedence:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from rgbd_envmap.colour import srgb8_to_linear_lut
 from rgbd_envmap.reference.render_composite import encode_srgb8
 from rgbd_envmap.render.layer import Layer
 
-__all__ = ["RATIO_EPS", "composite_differential", "faces_touching", "light_irradiance", "light_weights",
-           "receiver_ratio_terms", "shadow_ray_candidates"]
+__all__ = ["RATIO_EPS", "composite_differential", "cone_rays", "faces_touching", "light_irradiance", "light_weights",
+           "ray_sh_sums", "receiver_ratio_terms", "shadow_ray_candidates"]
 
 RATIO_EPS = 1e-3
 
@@ -169,3 +171,80 @@ def faces_touching(faces, far) -> np.ndarray:
     f = np.asarray(faces)
     far = np.asarray(far, bool)
     return f[far[f].any(axis=1)]
+
+
+def cone_rays(points, normals, axis, cos_max, pattern, offset, idx) -> tuple:
+    """The receivers' occlusion rays: for each receiver i = ``idx[c]`` and each stratified point
+    (u0, u1) of ``pattern`` (m, 2), the direction d = cos_t a + sin_t cos φ t + sin_t sin φ b in the
+    cone around its unit ``axis`` a with half-angle acos(``cos_max[i]``): cos_t = 1 − u0 (1 − cos_max),
+    sin_t = √max(0, 1 − cos_t²), φ = 2π u1, and t = a × h / |a × h| (h the x axis, or the y axis where
+    |a_x| ≥ 0.9), b = a × t. Kept where it leaves the front of the surface, n · d > 0. Returns
+    (origins points[i] + ``offset`` n (N, 3), directions (N, 3), c (N,) int64, n · d (N,)), receiver by
+    receiver, pattern point by pattern point."""
+    out_o, out_d, out_c, out_cos = [], [], [], []
+    for c, i in enumerate(np.asarray(idx).tolist()):
+        a = [float(v) for v in axis[i]]
+        h = [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0]
+        t = [a[1] * h[2] - a[2] * h[1], a[2] * h[0] - a[0] * h[2], a[0] * h[1] - a[1] * h[0]]
+        tn = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+        t = [t[0] / tn, t[1] / tn, t[2] / tn]
+        b = [a[1] * t[2] - a[2] * t[1], a[2] * t[0] - a[0] * t[2], a[0] * t[1] - a[1] * t[0]]
+        n = [float(v) for v in normals[i]]
+        for u0, u1 in np.asarray(pattern, np.float64).tolist():
+            ct = 1.0 - u0 * (1.0 - float(cos_max[i]))
+            st = math.sqrt(max(0.0, 1.0 - ct * ct))
+            phi = 2.0 * math.pi * u1
+            sc, ss = st * math.cos(phi), st * math.sin(phi)
+            d = [ct * a[k] + sc * t[k] + ss * b[k] for k in range(3)]
+            cs = n[0] * d[0] + n[1] * d[1] + n[2] * d[2]
+            if cs > 0.0:
+                out_o.append([float(points[i][k]) + offset * n[k] for k in range(3)])
+                out_d.append(d)
+                out_c.append(c)
+                out_cos.append(cs)
+    return (np.array(out_o, np.float64).reshape(-1, 3), np.array(out_d, np.float64).reshape(-1, 3),
+            np.array(out_c, np.int64), np.array(out_cos, np.float64))
+
+
+def ray_sh_sums(dirs, weights, owner, bands: int, n_owners: int) -> tuple[np.ndarray, np.ndarray]:
+    """(Σ w_r Y(d_r) per owner (n_owners, bands²), Σ w_r per owner (n_owners,)) over the rays in
+    their order, Y the real SH basis (:func:`rgbd_envmap.sh.basis`, Condon–Shortley phase) at the unit
+    direction d_r by the recurrences of :func:`rgbd_envmap.sh.legendre` (Q_lm = K_lm P_l^m / sin^m θ)
+    and (x + iy)^m = sin^m θ (cos mφ + i sin mφ)."""
+    K = bands * bands
+    out_sh = np.zeros((n_owners, K))
+    out_w = np.zeros(n_owners)
+    for (x, y, z), w, o in zip(np.asarray(dirs, np.float64).tolist(), np.asarray(weights, np.float64).tolist(),
+                               np.asarray(owner).tolist()):
+        q = [0.0] * K
+        q_mm = 1.0 / math.sqrt(4.0 * math.pi)
+        for m in range(bands):
+            if m > 0:
+                q_mm = -math.sqrt((2 * m + 1) / (2 * m)) * q_mm
+            scale = math.sqrt(2.0) if m > 0 else 1.0
+            q_prev2, q_prev = 0.0, q_mm
+            for l in range(m, bands):
+                if l == m:
+                    v = q_mm
+                elif l == m + 1:
+                    v = math.sqrt(2 * m + 3) * z * q_mm
+                else:
+                    a = math.sqrt((4 * l * l - 1) / (l * l - m * m))
+                    b = math.sqrt(((l - 1) ** 2 - m * m) / (4 * (l - 1) ** 2 - 1))
+                    v = a * (z * q_prev - b * q_prev2)
+                if l > m:
+                    q_prev2, q_prev = q_prev, v
+                k0 = l * (l + 1)
+                q[k0 + m] = scale * v
+                if m > 0:
+                    q[k0 - m] = scale * v
+        c, s = 1.0, 0.0
+        for m in range(1, bands):
+            c, s = c * x - s * y, c * y + s * x
+            for l in range(m, bands):
+                k0 = l * (l + 1)
+                q[k0 + m] *= c
+                q[k0 - m] *= s
+        out_w[o] += w
+        out_sh[o] += w * np.array(q)
+    return out_sh, out_w

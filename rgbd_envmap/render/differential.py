@@ -53,6 +53,7 @@ import numpy as np
 from rgbd_envmap import sh
 from rgbd_envmap._kernels.differential import RATIO_EPS
 from rgbd_envmap._kernels.light_weights import light_irradiance_kernel, light_weights_kernel
+from rgbd_envmap._kernels.occlusion_rays import cone_rays_kernel, ray_sh_sums_kernel
 from rgbd_envmap._kernels.receiver_shading import faces_touching_kernel, receiver_ratio_kernel
 from rgbd_envmap._kernels.shadow_rays import shadow_ray_candidates_kernel
 from rgbd_envmap.checks import check_array, check_number
@@ -193,29 +194,27 @@ def receiver_occlusion(receivers: ReceiverMesh, occluder: ObjectOccluder, bands:
     # the cone can be seen from the front of the surface at all
     above = inside | (np.sum(n * axis, axis=1) > -sin_a)
     idx = np.flatnonzero(above)
+    pattern = _fib_pattern(samples)
+    omega = 2 * np.pi * (1.0 - cos_max)  # each cone's solid angle
     step = max(1, _CHUNK // samples)
+    cap = min(len(idx), step) * samples
+    org, dirs = np.empty((cap, 3)), np.empty((cap, 3))
+    owner, cos = np.empty(cap, np.int64), np.empty(cap)
     for s in range(0, len(idx), step):
         ii = idx[s:s + step]
-        dirs, omega = cone_directions(axis[ii], cos_max[ii], samples)  # (c, m, 3)
-        cos = np.einsum("ck,cmk->cm", n[ii], dirs)
-        front = cos > 0
-        ci, mi = np.nonzero(front)
-        org = p[ii][ci] + offset_m * n[ii][ci]
-        hit = occluder.blocked(org, dirs[ci, mi])  # the occlusion test first: cheaper than a full cast
-        ci, mi = ci[hit], mi[hit]
-        if not len(ci):
+        # the rays that leave the front of the surface, receiver by receiver (owner: index into ii)
+        k = cone_rays_kernel(p, n, axis, cos_max, pattern, offset_m, ii, org, dirs, owner, cos)
+        hit = occluder.blocked(org[:k], dirs[:k])  # the occlusion test first: cheaper than a full cast
+        ho, hd = org[:k][hit], dirs[:k][hit]
+        if not len(ho):
             continue
-        _, tri, bary = occluder.first_hits(org[hit], dirs[ci, mi])
-        w = (omega[ci] / samples) * cos[ci, mi]
-        rows.append(np.repeat(ii[ci], 3))
+        ci = ii[owner[:k][hit]]  # ascending: each vertex's blocked rays are one run
+        _, tri, bary = occluder.first_hits(ho, hd)
+        w = (omega[ci] / samples) * cos[:k][hit]
+        rows.append(np.repeat(ci, 3))
         cols.append(occluder.faces[tri].ravel())
         vals.append((w[:, None] * bary).ravel())
-        # ci is ascending (np.nonzero's order): each vertex's blocked rays are one run, so the sums
-        # per vertex are a CSR matrix (vertex × ray, the weights) times the rays' basis values
-        indptr = np.concatenate([[0], np.cumsum(np.bincount(ci, minlength=len(ii)))])
-        weights = csr_matrix((w, np.arange(len(w)), indptr), shape=(len(ii), len(w)))
-        out_cos[ii] += np.asarray(weights.sum(axis=1)).ravel()
-        out_sh[ii] += weights @ sh.basis(dirs[ci, mi], bands)
+        ray_sh_sums_kernel(hd, w, ci, bands, out_sh, out_cos)
     if rows:  # duplicates (a vertex hit by several rays of one receiver) are summed by the conversion
         bounce = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(V, nv)).tocsr()
     else:

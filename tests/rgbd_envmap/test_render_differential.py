@@ -141,6 +141,68 @@ def test_cone_directions_inside_the_cone_with_its_solid_angle():
     np.testing.assert_allclose(np.einsum("ck,cmk->cm", axis, d).mean(1), (1 + cos_max) / 2, atol=1e-3)
 
 
+def test_cone_ray_kernel_is_its_reference_bit_for_bit_and_the_cones_directions():
+    """The occlusion rays: kernel against the plain-Python reference bit for bit, and against
+    cone_directions (the numpy form) with the front-facing selection, to rounding; axes along x
+    (the other helper axis), a full hemisphere (cos_max 0) and a receiver facing away."""
+    from rgbd_envmap._kernels.occlusion_rays import cone_rays_kernel
+    from rgbd_envmap.reference.render_differential import cone_rays
+    from rgbd_envmap.render.differential import _fib_pattern
+
+    rng = np.random.default_rng(4)
+    N, m = 40, 16
+    axis = rng.normal(size=(N, 3))
+    axis[:3] = [[1, 0, 0], [-0.95, 0.3, 0.1], [0, 0, 1]]
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    nrm = rng.normal(size=(N, 3))
+    nrm[5] = -axis[5]  # faces away: no ray
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    pts = rng.uniform(-1, 1, (N, 3))
+    cos_max = rng.uniform(0.0, 0.999, N)
+    cos_max[2] = 0.0
+    idx = np.array([0, 1, 2, 5, 7, 11, 39])
+    pattern = _fib_pattern(m)
+    out = [np.empty((len(idx) * m, 3)), np.empty((len(idx) * m, 3)), np.empty(len(idx) * m, np.int64), np.empty(len(idx) * m)]
+    k = cone_rays_kernel(pts, nrm, axis, cos_max, pattern, 1e-4, idx, *out)
+    want = cone_rays(pts, nrm, axis, cos_max, pattern, 1e-4, idx)
+    assert k == len(want[0])
+    for got, w in zip(out, want):
+        np.testing.assert_array_equal(got[:k], w)
+    assert 5 not in idx[out[2][:k]]
+    d, _ = cone_directions(axis[idx], cos_max[idx], m)
+    cos = np.einsum("ck,cmk->cm", nrm[idx], d)
+    ci, mi = np.nonzero(cos > 0)
+    np.testing.assert_array_equal(out[2][:k], ci)
+    np.testing.assert_allclose(out[1][:k], d[ci, mi], atol=1e-14)
+    np.testing.assert_allclose(out[0][:k], pts[idx][ci] + 1e-4 * nrm[idx][ci], atol=1e-15)
+    np.testing.assert_allclose(out[3][:k], cos[ci, mi], atol=1e-14)
+
+
+@pytest.mark.parametrize("bands", [1, 3, 5, 8])
+def test_ray_sh_sums_kernel_is_its_reference_bit_for_bit_and_the_sh_basis(bands):
+    """Weight × SH basis summed per receiver: kernel against the plain-Python reference bit for bit,
+    and against sh.basis summed with numpy to rounding; rays at the poles and on the seam."""
+    from rgbd_envmap._kernels.occlusion_rays import ray_sh_sums_kernel
+    from rgbd_envmap.reference.render_differential import ray_sh_sums
+
+    rng = np.random.default_rng(8)
+    d = rng.normal(size=(300, 3))
+    d[:4] = [[0, 0, 1], [0, 0, -1], [-1, 0, 0], [1, 0, 0]]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    w = rng.uniform(0, 0.2, 300)
+    owner = np.sort(rng.integers(0, 25, 300))
+    sh_out, w_out = np.zeros((30, bands * bands)), np.zeros(30)
+    ray_sh_sums_kernel(d, w, owner, bands, sh_out, w_out)
+    want_sh, want_w = ray_sh_sums(d, w, owner, bands, 30)
+    np.testing.assert_array_equal(sh_out, want_sh)
+    np.testing.assert_array_equal(w_out, want_w)
+    brute = np.zeros((30, bands * bands))
+    np.add.at(brute, owner, w[:, None] * sh.basis(d, bands))
+    np.testing.assert_allclose(sh_out, brute, rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(w_out, np.bincount(owner, w, minlength=30), rtol=1e-13)
+    assert (sh_out[25:] == 0).all()
+
+
 def test_shadow_of_a_sphere_from_a_point_light_matches_the_closed_form():
     r, c = 0.05, np.array([0.0, 0.0, 0.08])
     v, f = icosphere(r, c)
