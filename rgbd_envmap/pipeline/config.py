@@ -128,6 +128,11 @@ class RenderConfig:
     receiver_radius_m: float = 0.4
     receiver_spacing_m: float = 0.008
     geometry_every: int = 10
+    #: differential: relights between a rebuild's snapshot of the map and its use. With ``threads`` ≥ 2
+    #: the rebuild (mesh and occlusion rays, a few hundred ms) runs on the second core meanwhile, so that
+    #: no depth frame stalls for it; with one thread it runs at the snapshot, with the same result. 0:
+    #: rebuilt and used in the same relight. Less than ``geometry_every``.
+    geometry_lag: int = 2
     #: differential: the largest albedo a real surface may have: the receivers' irradiance without the
     #: object is kept at least π × the map's radiance there / this (light the map missed, taken as
     #: uniform; DifferentialShader.set_receivers). 0 turns the floor off.
@@ -150,6 +155,7 @@ class RenderConfig:
         check_number(self.receiver_radius_m, "render.receiver_radius_m", low=0.0, low_open=True, high=10.0)
         check_number(self.receiver_spacing_m, "render.receiver_spacing_m", low=1e-4, high=1.0)
         check_number(self.geometry_every, "render.geometry_every", low=1, high=1_000_000, integer=True)
+        check_number(self.geometry_lag, "render.geometry_lag", low=0, high=self.geometry_every - 1, integer=True)
         check_number(self.occlusion_samples, "render.occlusion_samples", low=1, high=4096, integer=True)
 
 

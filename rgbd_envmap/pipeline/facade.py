@@ -44,6 +44,7 @@ References:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from dataclasses import dataclass, replace
@@ -160,6 +161,34 @@ def _lighting_arrays(lighting) -> tuple[np.ndarray, np.ndarray | None]:
                             f"valid) pair or an (H, W, 3) radiance array, got {type(lighting).__name__}")
 
 
+class _Done:
+    """A finished job's result, with the interface of a future."""
+
+    def __init__(self, value) -> None:
+        self._value = value
+
+    def result(self):
+        return self._value
+
+
+def _receiver_geometry(depth_m: np.ndarray, valid: np.ndarray, origin: np.ndarray, shader, base: np.ndarray, rc,
+                       bands: int, *, own_occluder: bool):
+    """(receiver mesh, its occlusion by the object) from the map's depth: the map's surfaces near
+    the object merged with the support plane through its base where the map has none (2
+    spacings away). ``own_occluder``: cast the occlusion rays against a copy of the shader's
+    occluder (a rebuild beside the depth frames must not share the one their shadow rays use)."""
+    from rgbd_envmap.render.differential import ObjectOccluder, receiver_occlusion
+    from rgbd_envmap.render.geometry import merge_receivers, receiver_mesh, support_plane
+
+    occluder = shader.occluder
+    if own_occluder:
+        occluder = ObjectOccluder(occluder.vertices, occluder.faces)
+    mesh = receiver_mesh(depth_m, valid, origin, occluder.centre, rc.receiver_radius_m, spacing_m=rc.receiver_spacing_m)
+    plane = support_plane(base, rc.receiver_radius_m, rc.receiver_spacing_m)
+    mesh = merge_receivers(mesh, plane, 2 * rc.receiver_spacing_m)
+    return mesh, receiver_occlusion(mesh, occluder, bands, samples=shader.samples)
+
+
 class Pipeline:
     """Runs the stages per packet (see the module docstring); ``feed`` packets in delivery order."""
 
@@ -252,6 +281,9 @@ class Pipeline:
         self._diff_base: np.ndarray | None = None
         self._receiver_faces = np.zeros((0, 3), np.int32)
         self._relights_since_geometry = 0
+        # a receiver rebuild under way: (its future, the shader it is for, relights until it is used)
+        self._geometry_job: tuple | None = None
+        self._geometry_pool = None  # the second core's thread for receiver rebuilds (config.threads ≥ 2)
         self._light_state = None  # the sampler's state (Q2-Tree, Hemigon), relight to relight
         self._lights_sh: np.ndarray | None = None  # the direct part's SH when self.lights was sampled
         #: relights that kept the last lights (their direct part within render.lights_tolerance)
@@ -760,7 +792,7 @@ class Pipeline:
         E_with / E_without (rgbd_envmap.render.differential); the receiver mesh is rebuilt from the map's
         depth every ``render.geometry_every`` relights."""
         from rgbd_envmap.render.differential import DifferentialShader
-        from rgbd_envmap.render.geometry import merge_receivers, receiver_mesh, support_plane, surface_radiance
+        from rgbd_envmap.render.geometry import surface_radiance
 
         rc = self.config.render
         base = self.object_base
@@ -773,14 +805,34 @@ class Pipeline:
         if self._relights_since_geometry >= rc.geometry_every:
             with timer.stage("Receiver geometry"):
                 em = self._lighting_map()
-                mesh = receiver_mesh(em.depth_m, em.valid, em.origin, shader.occluder.centre, rc.receiver_radius_m,
-                                     spacing_m=rc.receiver_spacing_m)
-                # the plane through the object's base where the map has no surface (2 spacings away)
-                plane = support_plane(base, rc.receiver_radius_m, rc.receiver_spacing_m)
-                mesh = merge_receivers(mesh, plane, 2 * rc.receiver_spacing_m)
-                radiance = surface_radiance(em.radiance, em.valid, em.origin, mesh.vertices) if rc.max_albedo else None
-                shader.set_receivers(mesh, self.sh_bands_computed, radiance=radiance, max_albedo=rc.max_albedo or 1.0)
+                # the first mesh is needed now; later ones are built from a snapshot of the map's depth
+                # and used geometry_lag relights on (on the second core meanwhile, with two threads)
+                lag = rc.geometry_lag if len(shader.receivers) else 0
+                snapshot = (em.depth_m.copy(), em.valid.copy(), em.origin.copy()) if lag else \
+                    (em.depth_m, em.valid, em.origin)
+                build = functools.partial(_receiver_geometry, *snapshot, shader, base.copy(), rc, self.sh_bands_computed,
+                                          own_occluder=lag > 0)
+                if lag and self.config.threads >= 2:
+                    if self._geometry_pool is None:
+                        from concurrent.futures import ThreadPoolExecutor
+
+                        self._geometry_pool = ThreadPoolExecutor(1, thread_name_prefix="rgbd-envmap-geometry")
+                    job = self._geometry_pool.submit(build)
+                else:
+                    job = _Done(build())
+                self._geometry_job = (job, shader, lag)
             self._relights_since_geometry = 0
+        pending = self._geometry_job
+        if pending is not None and pending[1] is not shader:
+            self._geometry_job = pending = None  # built for an object that has moved since: dropped
+        if pending is not None and self._relights_since_geometry >= pending[2]:
+            with timer.stage("Receiver geometry"):
+                mesh, occlusion = pending[0].result()
+                em = self._lighting_map()
+                radiance = surface_radiance(em.radiance, em.valid, em.origin, mesh.vertices) if rc.max_albedo else None
+                shader.set_receivers(mesh, self.sh_bands_computed, radiance=radiance, max_albedo=rc.max_albedo or 1.0,
+                                     occlusion=occlusion)
+            self._geometry_job = None
         self._relights_since_geometry += 1
         with timer.stage("Shade receivers" if rc.object_shading == "prt" else "Shade object (PRT)"):
             # "prt": the object keeps its PRT colours (self.colours), which also light the receivers
@@ -829,6 +881,10 @@ class Pipeline:
         return ColourStep(timestamp_ns, image, srgb8)
 
     def close(self) -> None:
+        if self._geometry_pool is not None:
+            self._geometry_pool.shutdown(wait=True)
+            self._geometry_pool = None
+            self._geometry_job = None
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

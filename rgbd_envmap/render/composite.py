@@ -29,7 +29,11 @@ from rgbd_envmap.colour import srgb8_to_linear_lut, srgb_to_linear
 from rgbd_envmap.errors import DTypeError, NonFiniteError, RangeError, RgbdEnvmapError, ShapeError
 from rgbd_envmap.render.layer import Layer
 
-__all__ = ["COMPOSITE_MODES", "composite", "composite_differential", "srgb8_encoder"]
+__all__ = ["COMPOSITE_MODES", "RATIO_EPS", "composite", "composite_differential", "srgb8_encoder"]
+
+#: the differential composite leaves a receiver pixel as it is where its ratio E_with / E_without is
+#: within this of 1 in every channel (so triangles whose vertices all are need not be drawn).
+RATIO_EPS = diff_kernels.RATIO_EPS
 
 #: the composite modes of the pipeline (``render.composite``): ``"paper003"``, the PRT-shaded object and
 #: the shadow plane's alpha (:func:`composite`); ``"differential"``, the object and its change to the

@@ -51,7 +51,6 @@ from __future__ import annotations
 import numpy as np
 
 from rgbd_envmap import sh
-from rgbd_envmap._kernels.differential import RATIO_EPS
 from rgbd_envmap._kernels.light_weights import light_irradiance_kernel, light_weights_kernel
 from rgbd_envmap._kernels.occlusion_rays import cone_rays_kernel, ray_sh_sums_kernel
 from rgbd_envmap._kernels.receiver_shading import faces_touching_kernel, receiver_ratio_kernel
@@ -59,6 +58,7 @@ from rgbd_envmap._kernels.shadow_rays import shadow_ray_candidates_kernel
 from rgbd_envmap.checks import check_array, check_number
 from rgbd_envmap.errors import InvalidInputError
 from rgbd_envmap.lights import LightSet
+from rgbd_envmap.render.composite import RATIO_EPS
 from rgbd_envmap.render.geometry import ReceiverMesh
 
 __all__ = ["ObjectOccluder", "ReceiverOcclusion", "cone_directions", "direct_irradiance", "object_radiance",
@@ -368,9 +368,12 @@ class DifferentialShader:
         to 1e-6) per light, "p" for a positioned light and "d" for a distant one."""
         return tuple((k, *np.round(d, 6).tolist()) for k, d, _, _ in self._visibility)
 
-    def set_receivers(self, receivers: ReceiverMesh, bands: int, radiance: object = None, max_albedo: float = 1.0) -> None:
-        """A new receiver mesh (the map's geometry changed): its occlusion is estimated anew, and its
-        SH transfer without (Â_l Y_k(n)) and with the object (minus B_k) kept.
+    def set_receivers(self, receivers: ReceiverMesh, bands: int, radiance: object = None, max_albedo: float = 1.0,
+                      occlusion: ReceiverOcclusion | None = None) -> None:
+        """A new receiver mesh (the map's geometry changed): its occlusion is estimated anew (or taken
+        from ``occlusion``, :func:`receiver_occlusion` of this mesh and object at ``bands`` and
+        ``self.samples``, computed elsewhere), and its SH transfer without (Â_l Y_k(n)) and with the
+        object (minus B_k) kept.
 
         ``radiance`` (R, 3): the map's radiance of each receiver vertex (what the camera saw there).
         With it the receivers' irradiance without the object is kept at least π · radiance /
@@ -386,7 +389,14 @@ class DifferentialShader:
             max_albedo = check_number(max_albedo, "max_albedo", low=0.0, low_open=True)
             self._floor = np.pi * np.maximum(np.nan_to_num(np.asarray(rad, np.float64)), 0.0) / max_albedo
         self._bands = check_number(bands, "bands", low=1, integer=True)
-        self._occlusion = receiver_occlusion(receivers, self.occluder, bands, samples=self.samples)
+        if occlusion is None:
+            occlusion = receiver_occlusion(receivers, self.occluder, bands, samples=self.samples)
+        elif not isinstance(occlusion, ReceiverOcclusion) or occlusion.blocked_sh.shape != (len(receivers), bands * bands) \
+                or (occlusion.bounce is not None
+                    and occlusion.bounce.shape != (len(receivers), len(self.occluder.vertices))):
+            raise InvalidInputError(f"occlusion: expected the ReceiverOcclusion of these {len(receivers)} receivers "
+                                    f"at {bands} bands and this object's {len(self.occluder.vertices)} vertices")
+        self._occlusion = occlusion
         from rgbd_envmap.prt import unoccluded_transfer
 
         t0 = unoccluded_transfer(receivers.normals, bands).astype(np.float64) if len(receivers) else \

@@ -170,3 +170,55 @@ def test_lights_are_kept_while_the_direct_part_stays_within_tolerance(tolerance)
     assert (pipe.lights_kept == 0) == (tolerance == 0.0)
     assert np.isfinite(pipe.receiver_ratio).all()
     pipe.close()
+
+
+def _rebuilds(threads: int, every: int, lag: int):
+    """(relight at which each receiver mesh was installed, its size), and the final shading."""
+    from rgbd_envmap.render.differential import DifferentialShader
+
+    sim = Simulator(load_scene("office_unlit"), load_trajectory("orbit_inward"),
+                    TangoDeviceConfig(colour=ColourCameraConfig(width=320, height=180)), seed=4)
+    cfg = replace(CFG, threads=threads, render=RenderConfig(enabled=True, backend="numba", geometry_every=every,
+                                                            geometry_lag=lag),
+                  object=ObjectConfig(name="blob", prt_dirs=128, plane_resolution=16))
+    installed, relights = [], [0]
+    original = DifferentialShader.set_receivers
+
+    def spy(self, receivers, *a, **k):
+        installed.append((relights[0], len(receivers)))
+        return original(self, receivers, *a, **k)
+
+    DifferentialShader.set_receivers = spy
+    try:
+        with Pipeline(cfg, sim.calibration, ORIGIN) as pipe:
+            for sp in sim.run(2.0):
+                for r in pipe.feed(sp.packet):
+                    if isinstance(r, DepthStep) and r.sh_updated:
+                        relights[0] += 1  # counted after the relight ran
+            return installed, (pipe.colours.copy(), pipe.receiver_ratio.copy())
+    finally:
+        DifferentialShader.set_receivers = original
+
+
+def test_receiver_rebuilds_are_used_geometry_lag_relights_after_their_snapshot():
+    """render.geometry_lag: the first receiver mesh is built and used at once; each later rebuild
+    snapshots the map every geometry_every relights and is installed geometry_lag relights on (built
+    on a second thread with two threads, at the snapshot with one: the same meshes and shading)."""
+    every, lag = 3, 2
+    one, shading_one = _rebuilds(1, every, lag)
+    two, shading_two = _rebuilds(2, every, lag)
+    at = [i for i, _ in two]
+    assert len(at) >= 3 and at[0] == 0
+    assert at[1:] == [every * j + lag for j in range(1, len(at))]
+    assert all(n > 0 for _, n in two)
+    assert one == two
+    for x, y in zip(shading_one, shading_two):
+        np.testing.assert_array_equal(x, y)
+    now, _ = _rebuilds(2, every, 0)  # lag 0: built and used in the same relight
+    assert [i for i, _ in now] == [every * j for j in range(len(now))]
+
+
+def test_geometry_lag_is_less_than_the_rebuild_period():
+    with pytest.raises(RangeError, match="geometry_lag"):
+        RenderConfig(geometry_every=3, geometry_lag=3)
+    assert RenderConfig(geometry_every=1, geometry_lag=0).geometry_lag == 0

@@ -457,8 +457,8 @@ def test_receiver_ratio_kernel_is_its_reference_bit_for_bit(R, K, nk, Kb, use_fl
     """The fused receiver shading (three blocked SH products, the floor, the ratio, the far flags)
     against the reference's plain numpy sums; across a block boundary (R > 512), with fewer
     coefficients than the transfers hold, no object light, no receivers."""
-    from rgbd_envmap._kernels.differential import RATIO_EPS
     from rgbd_envmap._kernels.receiver_shading import receiver_ratio_kernel
+    from rgbd_envmap.render.composite import RATIO_EPS
     from rgbd_envmap.reference.render_differential import receiver_ratio_terms
 
     t0, t1, coeffs, bt, bc, add0, add1, floor, keep = _receiver_terms(R, K, Kb)
@@ -524,6 +524,33 @@ def test_shader_darkens_the_shadow_and_leaves_far_points():
     np.testing.assert_allclose(colours[top], 0.5 / np.pi * e_top, rtol=1e-3)
     bottom = np.argmin(v[:, 2])
     np.testing.assert_allclose(colours[bottom], 0.0, atol=1e-9)  # faces away from the light
+
+
+def test_receivers_with_an_occlusion_computed_elsewhere_shade_the_same():
+    """set_receivers(occlusion=...) with receiver_occlusion of the same mesh (against another occluder
+    of the same object, as a rebuild on another thread does) shades as computing it there; an
+    occlusion of another mesh or band count is refused."""
+    r, c = 0.04, np.array([0.0, 0.0, 0.05])
+    v, f = icosphere(r, c, 3)
+    nv = (v - c) / r
+    g = np.linspace(-0.3, 0.3, 21)
+    xy = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    pts = np.concatenate([xy, np.zeros((len(xy), 1))], 1)
+    mesh = ReceiverMesh(pts, np.tile([0, 0, 1.0], (len(pts), 1)), np.zeros((0, 3), np.int32))
+    lights = LightSet(np.array([[0, 0, 1.0]]), np.ones((1, 3)), "t", positions=np.array([[0.1, 0, 2.0]]), origin=np.zeros(3))
+    coeffs = np.zeros((9, 3))
+    coeffs[0] = 0.3
+    args = (lights, coeffs, np.zeros((len(v), 9)), np.full(3, 0.5))
+    a, b = DifferentialShader(v, f, nv, samples=16), DifferentialShader(v, f, nv, samples=16)
+    a.set_receivers(mesh, 3)
+    b.set_receivers(mesh, 3, occlusion=receiver_occlusion(mesh, ObjectOccluder(v, f), 3, samples=16))
+    for x, y in zip(a.shade(*args), b.shade(*args)):
+        np.testing.assert_array_equal(x, y)
+    with pytest.raises(RgbdEnvmapError, match="occlusion"):
+        b.set_receivers(mesh, 3, occlusion=receiver_occlusion(mesh, ObjectOccluder(v, f), 2, samples=16))
+    with pytest.raises(RgbdEnvmapError, match="occlusion"):
+        b.set_receivers(ReceiverMesh(pts[:5], mesh.normals[:5], np.zeros((0, 3), np.int32)), 3,
+                        occlusion=a._occlusion)
 
 
 def test_albedo_floor_adds_the_light_the_map_missed():
