@@ -17,8 +17,9 @@ Rendering axes replay with rendering on (no video, one composite PNG), against t
 - ``lights``: the differential composite's light sampler (``render.light_method`` val, q2tree,
   pharr, hemigon) × light count (``render.lights`` 12, 48);
 - ``composite``: the paper-003 composite; the differential one with the object shaded by its lights
-  (``render.object_shading=lights``) instead of PRT; ``render.tau`` 0.1, 0.2, 0.5 and 0.8 (the
-  default's left out).
+  (``render.object_shading=lights``) instead of PRT; ``render.tau`` 0.1, 0.2, 0.5 and 0.8; the
+  receivers' spacing ``render.receiver_spacing_m`` 8, 12 and 16 mm; the light grid's stride
+  ``render.light_grid_stride`` 4 and 8 (each axis's default left out).
 
 A rendering point is scored two ways. Against the run's reference frames (``reference/<timestamp>.npz``
 of a simulated run, :mod:`apps.reference_frames`) when there are any: the point's composite at each
@@ -67,6 +68,9 @@ TRANSLATION_OFFSET_M = (0.10, 0.0, 0.0)
 IRRADIANCE_NORMALS = 256
 LIGHT_METHODS = ("val", "q2tree", "pharr", "hemigon")
 TAUS = (0.1, 0.2, 0.5, 0.8)
+#: the receivers' vertex spacing (metres) and the light grid's stride on the composite axis
+RECEIVER_SPACINGS_M = (0.008, 0.012, 0.016)
+LIGHT_GRID_STRIDES = (4, 8)
 LIGHT_COUNTS = (12, 48)
 
 
@@ -127,6 +131,12 @@ def grid(axes: list[str] | None = None) -> list[SweepPoint]:
                                   ("render.composite=differential", f"render.object_shading={shading}"), render=True))
             pts += [SweepPoint("composite", f"composite tau {t:g}", ("render.composite=differential", f"render.tau={t}"),
                                render=True) for t in TAUS if not (differential and t == rc.tau)]
+            pts += [SweepPoint("composite", f"composite receivers {1000 * d:g} mm",
+                               ("render.composite=differential", f"render.receiver_spacing_m={d}"), render=True)
+                    for d in RECEIVER_SPACINGS_M if not (differential and d == rc.receiver_spacing_m)]
+            pts += [SweepPoint("composite", f"composite light grid /{k}",
+                               ("render.composite=differential", f"render.light_grid_stride={k}"), render=True)
+                    for k in LIGHT_GRID_STRIDES if not (differential and k == rc.light_grid_stride)]
     return pts
 
 

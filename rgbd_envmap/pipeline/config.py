@@ -119,14 +119,20 @@ class RenderConfig:
     object_shading: str = "prt"
     #: differential: the fraction τ of the map's energy given to the lights (paper 000 §4.2), the rest to SH.
     tau: float = 0.1
+    #: differential: the split and the light sampler read every this-many-th map row and column (8 on a
+    #: 2000×1000 map: 250×125 pixels, 1.4° each; the lamp still spans a few dozen; the composite's errors
+    #: equal 4's to four digits at 40 % of the lights' time: docs/design/differential.md).
+    light_grid_stride: int = 8
     #: differential: the lights of the last sampling are kept while the direct part's SH coefficients
     #: differ from theirs by at most this fraction (Frobenius norm): a lamp that stays put is not
     #: resampled, nor its shadow terms recomputed, on every depth frame. 0 resamples on every relight.
     lights_tolerance: float = 0.02
     #: differential: the real geometry: map points within this distance of the object's centre, one per
-    #: cube of side ``receiver_spacing_m``; rebuilt every ``geometry_every`` relights.
+    #: cube of side ``receiver_spacing_m`` (12 mm: the main session's shadow 5 % closer to the reference
+    #: than at 8 mm, the same in a poorly mapped one, the receivers' shading and raster half the work;
+    #: 16 mm is 11 % worse: docs/design/differential.md); rebuilt every ``geometry_every`` relights.
     receiver_radius_m: float = 0.4
-    receiver_spacing_m: float = 0.008
+    receiver_spacing_m: float = 0.012
     geometry_every: int = 10
     #: differential: relights between a rebuild's snapshot of the map and its use. With ``threads`` ≥ 2
     #: the rebuild (mesh and occlusion rays, a few hundred ms) runs on the second core meanwhile, so that
@@ -151,6 +157,7 @@ class RenderConfig:
         check_number(self.max_albedo, "render.max_albedo", low=0.0)
         check_method(self.object_shading, OBJECT_SHADING, "render.object_shading")
         check_number(self.tau, "render.tau", low=0.0, high=1.0)
+        check_number(self.light_grid_stride, "render.light_grid_stride", low=1, high=64, integer=True)
         check_number(self.lights_tolerance, "render.lights_tolerance", low=0.0, high=1.0)
         check_number(self.receiver_radius_m, "render.receiver_radius_m", low=0.0, low_open=True, high=10.0)
         check_number(self.receiver_spacing_m, "render.receiver_spacing_m", low=1e-4, high=1.0)

@@ -97,9 +97,6 @@ COLOUR_TOTAL = "colour_frame_total"
 #: the same frozen pose: a tracker that stopped reports one pose for both streams, a moving device's
 #: tracking noise is millimetres.
 FROZEN_POSE_TOL = 1e-7
-#: the differential composite's lights and direct / indirect split work on every LIGHT_MAP_STRIDE-th map
-#: row and column.
-LIGHT_MAP_STRIDE = 4
 #: stages that are not part of a depth frame's total (they belong to rendering a colour frame).
 RENDER_STAGES = ("Decode colour frame", "Rasterise", "Composite")
 #: a colour frame's total: everything it does to be shown (decode, shade when due, rasterise, composite).
@@ -723,10 +720,10 @@ class Pipeline:
                                         sample_lights)
 
         rc = self.config.render
-        # On every LIGHT_MAP_STRIDE-th row and column (a 16th of the pixels: the split's histogram and the
-        # sampler cost about that much less; a lamp spans tens of pixels). Radiance clamped at 0 (the
-        # correction matrix can leave tiny negative values).
-        k = LIGHT_MAP_STRIDE
+        # On every render.light_grid_stride-th row and column (4: a 16th of the pixels, the split's
+        # histogram and the sampler cost about that much less; a lamp spans tens of pixels). Radiance
+        # clamped at 0 (the correction matrix can leave tiny negative values).
+        k = rc.light_grid_stride
         sub = (slice(k // 2, None, k), slice(k // 2, None, k))
         radiance = light_grid(em.radiance, k)
         valid = np.ascontiguousarray(em.valid[sub])

@@ -52,7 +52,9 @@ def test_composite_axis_changes_one_render_setting_each():
     pts = [p for p in grid(["composite"]) if p.axis == "composite"]
     assert all(p.render for p in pts)
     assert [_render_changes(p) for p in pts] == [{"composite": "paper003"}, {"object_shading": "lights"},
-                                                 {"tau": 0.2}, {"tau": 0.5}, {"tau": 0.8}]
+                                                 {"tau": 0.2}, {"tau": 0.5}, {"tau": 0.8},
+                                                 {"receiver_spacing_m": 0.008}, {"receiver_spacing_m": 0.016},
+                                                 {"light_grid_stride": 4}]
 
 
 def test_capture_axes_replay_without_rendering_and_the_render_default_is_shared():
