@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from rgbd_envmap import sh
 from rgbd_envmap._kernels.light_weights import light_irradiance_kernel, light_weights_kernel
 from rgbd_envmap._kernels.occlusion_rays import cone_rays_kernel, ray_sh_sums_kernel
 from rgbd_envmap._kernels.receiver_shading import faces_touching_kernel, receiver_ratio_kernel
