@@ -33,3 +33,31 @@ def test_warmup_compiles_what_the_capture_and_sh_tracker_then_use():
         tracker.coefficients(cap.em)
     assert tracker.incremental_updates > 0
     assert {name: set(k.signatures) for name, k in KERNELS.items()} == before
+
+
+def test_warmup_compiles_what_the_differential_composite_then_uses():
+    """After the warm-up, a short session composited by the differential composite (the default)
+    adds no new specialisation to the relight's and the composite's kernels."""
+    from rgbd_envmap._kernels import differential, lights_split, occlusion_rays, receiver_shading
+    from rgbd_envmap.pipeline import ColourStep, ObjectConfig, Pipeline, PipelineConfig, RenderConfig
+    from sim.colour_camera import ColourCameraConfig
+    from sim.device import TangoDeviceConfig
+    from sim.scene import load_scene
+    from sim.session import Simulator
+    from sim.trajectory import load_trajectory
+
+    kernels = {"receiver ratio": receiver_shading.receiver_ratio_kernel, "faces": receiver_shading.faces_touching_kernel,
+               "cone rays": occlusion_rays.cone_rays_kernel, "ray SH sums": occlusion_rays.ray_sh_sums_kernel,
+               "composite": differential.composite_differential, "split": lights_split.direct_split,
+               "light grid": lights_split.clamped_subgrid}
+    assert main() == 0
+    before = {name: set(k.signatures) for name, k in kernels.items()}
+    assert all(before.values()), before
+    sim = Simulator(load_scene("office_unlit"), load_trajectory("orbit_inward"),
+                    TangoDeviceConfig(colour=ColourCameraConfig(width=320, height=180)), seed=4)
+    cfg = PipelineConfig(render=RenderConfig(enabled=True, backend="numba"),
+                         object=ObjectConfig(name="blob", prt_dirs=128, plane_resolution=16))
+    with Pipeline(cfg, sim.calibration, np.array([0.0, 0.0, 0.8])) as pipe:
+        frames = [r for sp in sim.run(0.5) for r in pipe.feed(sp.packet) if isinstance(r, ColourStep)]
+    assert any(f.image is not None for f in frames) and pipe.receiver_ratio is not None
+    assert {name: set(k.signatures) for name, k in kernels.items()} == before
