@@ -208,43 +208,23 @@ def cone_rays(points, normals, axis, cos_max, pattern, offset, idx) -> tuple:
 
 def ray_sh_sums(dirs, weights, owner, bands: int, n_owners: int) -> tuple[np.ndarray, np.ndarray]:
     """(Σ w_r Y(d_r) per owner (n_owners, bands²), Σ w_r per owner (n_owners,)) over the rays in
-    their order, Y the real SH basis (:func:`rgbd_envmap.sh.basis`, Condon–Shortley phase) at the unit
-    direction d_r by the recurrences of :func:`rgbd_envmap.sh.legendre` (Q_lm = K_lm P_l^m / sin^m θ)
-    and (x + iy)^m = sin^m θ (cos mφ + i sin mφ)."""
-    K = bands * bands
-    out_sh = np.zeros((n_owners, K))
+    their order, Y the real SH basis at the unit directions d_r: the Legendre part of
+    :func:`rgbd_envmap.sh.legendre` times the (x + iy)^m = sin^m θ (cos mφ + i sin mφ) factors, as
+    :func:`rgbd_envmap.sh.basis` forms them (without its normalisation of the directions)."""
+    from rgbd_envmap.sh import legendre
+
+    d = np.asarray(dirs, np.float64).reshape(-1, 3)
+    x, y = d[:, 0], d[:, 1]
+    basis = legendre(d[:, 2], bands)
+    c, s = np.ones(len(d)), np.zeros(len(d))
+    for m in range(1, bands):
+        c, s = c * x - s * y, c * y + s * x
+        for l in range(m, bands):
+            basis[:, l * (l + 1) + m] *= c
+            basis[:, l * (l + 1) - m] *= s
+    out_sh = np.zeros((n_owners, bands * bands))
     out_w = np.zeros(n_owners)
-    for (x, y, z), w, o in zip(np.asarray(dirs, np.float64).tolist(), np.asarray(weights, np.float64).tolist(),
-                               np.asarray(owner).tolist()):
-        q = [0.0] * K
-        q_mm = 1.0 / math.sqrt(4.0 * math.pi)
-        for m in range(bands):
-            if m > 0:
-                q_mm = -math.sqrt((2 * m + 1) / (2 * m)) * q_mm
-            scale = math.sqrt(2.0) if m > 0 else 1.0
-            q_prev2, q_prev = 0.0, q_mm
-            for l in range(m, bands):
-                if l == m:
-                    v = q_mm
-                elif l == m + 1:
-                    v = math.sqrt(2 * m + 3) * z * q_mm
-                else:
-                    a = math.sqrt((4 * l * l - 1) / (l * l - m * m))
-                    b = math.sqrt(((l - 1) ** 2 - m * m) / (4 * (l - 1) ** 2 - 1))
-                    v = a * (z * q_prev - b * q_prev2)
-                if l > m:
-                    q_prev2, q_prev = q_prev, v
-                k0 = l * (l + 1)
-                q[k0 + m] = scale * v
-                if m > 0:
-                    q[k0 - m] = scale * v
-        c, s = 1.0, 0.0
-        for m in range(1, bands):
-            c, s = c * x - s * y, c * y + s * x
-            for l in range(m, bands):
-                k0 = l * (l + 1)
-                q[k0 + m] *= c
-                q[k0 - m] *= s
+    for r, (w, o) in enumerate(zip(np.asarray(weights, np.float64).tolist(), np.asarray(owner).tolist())):
         out_w[o] += w
-        out_sh[o] += w * np.array(q)
+        out_sh[o] += w * basis[r]
     return out_sh, out_w

@@ -61,7 +61,7 @@ from rgbd_envmap.render.composite import RATIO_EPS
 from rgbd_envmap.render.geometry import ReceiverMesh
 
 __all__ = ["ObjectOccluder", "ReceiverOcclusion", "cone_directions", "direct_irradiance", "object_radiance",
-           "receiver_occlusion", "receiver_ratio"]
+           "receiver_occlusion"]
 
 #: rays per open3d call (bounded memory).
 _CHUNK = 1 << 18
@@ -302,17 +302,6 @@ def light_visibility(lights: LightSet, points: np.ndarray, normals: np.ndarray, 
         rows, cols = rows[:count], cols[:count]
         vis[rows, cols] = ~occluder.blocked(org[rows], vec[:count], 1.0)
     return vis
-
-
-def receiver_ratio(e_without: np.ndarray, e_with: np.ndarray, *, floor: float = 1e-6, high: float = 4.0) -> np.ndarray:
-    """(N, 3) float32 E_with / E_without per channel, 1 where E_without ≤ ``floor`` · its largest
-    value (no light to change), clipped to [0, ``high``]."""
-    e0 = np.asarray(e_without, np.float64)
-    e1 = np.asarray(e_with, np.float64)
-    lim = floor * max(float(e0.max(initial=0.0)), 1e-300)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = np.where(e0 > lim, e1 / e0, 1.0)
-    return np.clip(r, 0.0, high).astype(np.float32)
 
 
 def object_radiance(albedo: object, transfer: np.ndarray, coeffs_indirect: np.ndarray, direct: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ from rgbd_envmap.lights import LightSet, irradiance, sample_lights, split_direct
 from rgbd_envmap.reference.render_differential import composite_differential as composite_ref
 from rgbd_envmap.render import Layer, composite, composite_differential
 from rgbd_envmap.render.differential import (DifferentialShader, ObjectOccluder, cone_directions, direct_irradiance,
-                                             light_visibility, receiver_occlusion, receiver_ratio)
+                                             light_visibility, receiver_occlusion)
 from rgbd_envmap.render.geometry import ReceiverMesh, merge_receivers, receiver_mesh, support_plane, surface_radiance
 
 
@@ -495,8 +495,18 @@ def test_faces_touching_kernel_is_its_reference():
 
 
 def test_receiver_ratio_floor_and_clip():
-    r = receiver_ratio(np.array([[1.0, 2, 0], [0, 0, 0]]), np.array([[0.5, 10, 3], [1, 1, 1]]))
-    np.testing.assert_allclose(r, [[0.5, 4.0, 1.0], [1, 1, 1]])
+    """E_with / E_without given directly (no SH part): 1 where E_without is 0 (no light to change),
+    clipped at 4, and only the vertex whose ratio differs from 1 flagged."""
+    from rgbd_envmap._kernels.receiver_shading import receiver_ratio_kernel
+    from rgbd_envmap.render.composite import RATIO_EPS
+
+    e0, e1 = np.array([[1.0, 2, 0], [0, 0, 0]]), np.array([[0.5, 10, 3], [1, 1, 1]])
+    none, t = np.zeros((0, 3)), np.zeros((0, 2), np.float32)
+    ratio, far, s = np.empty((2, 3), np.float32), np.empty(2, bool), np.empty((3, 3, 2))
+    n = receiver_ratio_kernel(t, t, 0, none, t, 0, none, e0, e1, np.zeros((2, 3)), False, np.ones(2), 1e-6, 4.0,
+                              RATIO_EPS, s[0], s[1], s[2], ratio, far)
+    np.testing.assert_allclose(ratio, [[0.5, 4.0, 1.0], [1, 1, 1]])
+    assert n == 1 and far.tolist() == [True, False]
 
 
 def test_shader_darkens_the_shadow_and_leaves_far_points():
@@ -526,17 +536,22 @@ def test_shader_darkens_the_shadow_and_leaves_far_points():
     np.testing.assert_allclose(colours[bottom], 0.0, atol=1e-9)  # faces away from the light
 
 
+def _sphere_over_grid(n: int = 21):
+    """An icosphere (r 4 cm, centre 5 cm up) and a flat grid of receivers under it (±0.3 m, normals up)."""
+    r, c = 0.04, np.array([0.0, 0.0, 0.05])
+    v, f = icosphere(r, c, 3)
+    g = np.linspace(-0.3, 0.3, n)
+    xy = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    pts = np.concatenate([xy, np.zeros((len(xy), 1))], 1)
+    return v, f, (v - c) / r, ReceiverMesh(pts, np.tile([0, 0, 1.0], (len(pts), 1)), np.zeros((0, 3), np.int32))
+
+
 def test_receivers_with_an_occlusion_computed_elsewhere_shade_the_same():
     """set_receivers(occlusion=...) with receiver_occlusion of the same mesh (against another occluder
     of the same object, as a rebuild on another thread does) shades as computing it there; an
     occlusion of another mesh or band count is refused."""
-    r, c = 0.04, np.array([0.0, 0.0, 0.05])
-    v, f = icosphere(r, c, 3)
-    nv = (v - c) / r
-    g = np.linspace(-0.3, 0.3, 21)
-    xy = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
-    pts = np.concatenate([xy, np.zeros((len(xy), 1))], 1)
-    mesh = ReceiverMesh(pts, np.tile([0, 0, 1.0], (len(pts), 1)), np.zeros((0, 3), np.int32))
+    v, f, nv, mesh = _sphere_over_grid()
+    pts = mesh.vertices
     lights = LightSet(np.array([[0, 0, 1.0]]), np.ones((1, 3)), "t", positions=np.array([[0.1, 0, 2.0]]), origin=np.zeros(3))
     coeffs = np.zeros((9, 3))
     coeffs[0] = 0.3
@@ -630,13 +645,8 @@ def test_shader_bounce_from_prt_coefficients_equals_the_vertex_form():
     transfer (another object shading) is not served from the cached product."""
     from rgbd_envmap import prt
 
-    r, c = 0.04, np.array([0.0, 0.0, 0.05])
-    v, f = icosphere(r, c, 3)
-    nv = (v - c) / r
-    g = np.linspace(-0.3, 0.3, 21)
-    xy = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
-    pts = np.concatenate([xy, np.zeros((len(xy), 1))], 1)
-    rec = ReceiverMesh(pts, np.tile([0, 0, 1.0], (len(pts), 1)), np.zeros((0, 3), np.int32))
+    v, f, nv, rec = _sphere_over_grid()
+    pts = rec.vertices
     rng = np.random.default_rng(2)
     transfer = prt.unoccluded_transfer(nv, 3).astype(np.float32)
     coeffs = rng.normal(0, 0.2, (9, 3))
@@ -653,7 +663,7 @@ def test_shader_bounce_from_prt_coefficients_equals_the_vertex_form():
     np.testing.assert_allclose(ra, rb, rtol=1e-5, atol=1e-6)
     # a lit top and a dark bottom: the receivers below see the dark side
     other = transfer.copy()
-    other[v[:, 2] < c[2]] *= 0.1
+    other[v[:, 2] < 0.05] *= 0.1  # below the centre
     _, r2 = a.shade(None, ind, other, albedo, object_colours=prt.shade(other, coeffs, albedo), object_coeffs=coeffs)
     _, r3 = b.shade(None, ind, other, albedo, object_colours=prt.shade(other, coeffs, albedo))
     np.testing.assert_allclose(r2, r3, rtol=1e-5, atol=1e-6)
